@@ -1,0 +1,1 @@
+//! Pipeline configuration: TOML loading and validation

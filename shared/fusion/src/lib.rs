@@ -1,0 +1,98 @@
+//! Depth frames → projective TSDF → normal grid.
+//!
+//! Grid layout (shared with the IPC messages and the network): every scalar grid is a `Vec<f32>`
+//! in [`Workspace`] index order (x-major, z fastest). The normal grid is channel-major:
+//! `normals[c · N + idx]` for channel `c ∈ {x, y, z}` and voxel `idx` — exactly the `[3, X, Y, Z]`
+//! input tensor of the network.
+#![warn(missing_docs)]
+
+use psgrasp_geometry::Workspace;
+
+/// Errors from fusion.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum FusionError {
+    /// The depth frame does not match the camera intrinsics.
+    #[error("depth frame is {got_w}×{got_h}, camera intrinsics say {want_w}×{want_h}")]
+    FrameSizeMismatch {
+        /// Frame width.
+        got_w: u32,
+        /// Frame height.
+        got_h: u32,
+        /// Intrinsics width.
+        want_w: u32,
+        /// Intrinsics height.
+        want_h: u32,
+    },
+    /// Bad camera or workspace geometry.
+    #[error(transparent)]
+    Geometry(#[from] psgrasp_geometry::GeometryError),
+    /// Bad depth data.
+    #[error(transparent)]
+    Depth(#[from] psgrasp_geometry::DepthError),
+    /// An output buffer has the wrong length.
+    #[error("output buffer {name} has {got} elements, expected {expected}")]
+    BufferSize {
+        /// Which buffer.
+        name: &'static str,
+        /// Its length.
+        got: usize,
+        /// Required length.
+        expected: usize,
+    },
+    /// The frame saw nothing inside the workspace.
+    #[error("no depth measurement falls inside the workspace")]
+    EmptyView,
+}
+
+/// A borrowed normal grid, e.g. straight out of a shared-memory sample.
+#[derive(Debug, Clone, Copy)]
+pub struct NormalGridView<'a> {
+    /// The grid geometry.
+    pub workspace: Workspace,
+    /// Channel-major unit normals (`3 · N` values); zero vectors outside the truncation band.
+    pub normals: &'a [f32],
+    /// Truncated signed distance in units of the truncation distance, in [−1, 1]; +1 = free or
+    /// unobserved in front of the surface, −1 = behind the surface (occluded/inside).
+    pub tsdf: &'a [f32],
+    /// Truncation distance in metres.
+    pub truncation_m: f32,
+}
+
+/// An owned normal grid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NormalGrid {
+    /// The grid geometry.
+    pub workspace: Workspace,
+    /// Channel-major unit normals (`3 · N` values).
+    pub normals: Vec<f32>,
+    /// Normalised TSDF in [−1, 1] (see [`NormalGridView::tsdf`]).
+    pub tsdf: Vec<f32>,
+    /// Truncation distance in metres.
+    pub truncation_m: f32,
+}
+
+impl NormalGrid {
+    /// Borrows the grid.
+    pub fn view(&self) -> NormalGridView<'_> {
+        NormalGridView { workspace: self.workspace, normals: &self.normals, tsdf: &self.tsdf, truncation_m: self.truncation_m }
+    }
+}
+
+impl NormalGridView<'_> {
+    /// The normal stored at voxel `idx`.
+    #[inline]
+    pub fn normal(&self, idx: usize) -> [f32; 3] {
+        let n = self.workspace.voxel_count();
+        [self.normals[idx], self.normals[n + idx], self.normals[2 * n + idx]]
+    }
+
+    /// Copies into an owned grid.
+    pub fn to_owned(&self) -> NormalGrid {
+        NormalGrid {
+            workspace: self.workspace,
+            normals: self.normals.to_vec(),
+            tsdf: self.tsdf.to_vec(),
+            truncation_m: self.truncation_m,
+        }
+    }
+}

@@ -1,0 +1,159 @@
+//! A Franka-hand-like parallel-jaw gripper as three boxes (palm and two fingers).
+//!
+//! Gripper frame: origin at the tool centre point (TCP, midway between the contacts),
+//! x along the closing baseline, z along the approach (palm → object), y = z × x.
+//! The fingertips reach `tip_beyond_tcp_m` past the TCP; the finger bases (and the palm face)
+//! lie `finger_length_m − tip_beyond_tcp_m` behind it.
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Box dimensions of the gripper, in metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GripperModel {
+    /// Largest opening between the finger pads.
+    pub max_opening_m: f32,
+    /// Finger size: thickness along x (closing direction), width along y, length along z.
+    pub finger_size_m: [f32; 3],
+    /// Palm size along x, y, z.
+    pub palm_size_m: [f32; 3],
+    /// How far the fingertips reach beyond the TCP along the approach.
+    pub tip_beyond_tcp_m: f32,
+}
+
+impl Default for GripperModel {
+    /// The Franka hand: 80 mm max opening, fingers 21×26×54 mm, hand 204×63×92 mm.
+    fn default() -> Self {
+        Self {
+            max_opening_m: 0.08,
+            finger_size_m: [0.021, 0.026, 0.054],
+            palm_size_m: [0.204, 0.063, 0.092],
+            tip_beyond_tcp_m: 0.015,
+        }
+    }
+}
+
+/// An oriented box: pose of its centre and half extents along its local axes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OrientedBox {
+    /// Maps box-local points into the parent frame; the origin is the box centre.
+    pub parent_from_box: Isometry3<f32>,
+    /// Half extents along the local x, y, z axes.
+    pub half_extents: Vector3<f32>,
+}
+
+impl OrientedBox {
+    /// True if `p` (parent frame) is inside the box grown by `margin` on every side.
+    #[inline]
+    pub fn contains(&self, p: &Point3<f32>, margin: f32) -> bool {
+        let l = self.parent_from_box.inverse_transform_point(p);
+        l.x.abs() <= self.half_extents.x + margin
+            && l.y.abs() <= self.half_extents.y + margin
+            && l.z.abs() <= self.half_extents.z + margin
+    }
+
+    /// The eight corners in the parent frame.
+    pub fn corners(&self) -> [Point3<f32>; 8] {
+        let h = self.half_extents;
+        std::array::from_fn(|i| {
+            let s = Vector3::new(
+                if i & 1 == 0 { -h.x } else { h.x },
+                if i & 2 == 0 { -h.y } else { h.y },
+                if i & 4 == 0 { -h.z } else { h.z },
+            );
+            self.parent_from_box * Point3::from(s)
+        })
+    }
+
+    /// Axis-aligned bounds (min, max) in the parent frame.
+    pub fn aabb(&self) -> (Point3<f32>, Point3<f32>) {
+        let c = self.corners();
+        let mut lo = c[0];
+        let mut hi = c[0];
+        for p in &c[1..] {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        (lo, hi)
+    }
+}
+
+impl GripperModel {
+    /// Distance from the TCP back to the palm face (finger bases) along the approach.
+    pub fn tcp_to_palm_m(&self) -> f32 {
+        self.finger_size_m[2] - self.tip_beyond_tcp_m
+    }
+
+    /// The palm and two finger boxes in the gripper frame for a given opening (clamped to
+    /// `[0, max_opening_m]`): `[palm, left finger (−x), right finger (+x)]`.
+    pub fn boxes_in_gripper_frame(&self, opening_m: f32) -> [OrientedBox; 3] {
+        let opening = opening_m.clamp(0.0, self.max_opening_m);
+        let [ft, fw, fl] = self.finger_size_m;
+        let [px, py, pz] = self.palm_size_m;
+        let finger_z = self.tip_beyond_tcp_m - 0.5 * fl;
+        let palm_z = -self.tcp_to_palm_m() - 0.5 * pz;
+        let at = |x: f32, z: f32| Isometry3::from_parts(Translation3::new(x, 0.0, z), UnitQuaternion::identity());
+        [
+            OrientedBox { parent_from_box: at(0.0, palm_z), half_extents: Vector3::new(0.5 * px, 0.5 * py, 0.5 * pz) },
+            OrientedBox {
+                parent_from_box: at(-0.5 * opening - 0.5 * ft, finger_z),
+                half_extents: Vector3::new(0.5 * ft, 0.5 * fw, 0.5 * fl),
+            },
+            OrientedBox {
+                parent_from_box: at(0.5 * opening + 0.5 * ft, finger_z),
+                half_extents: Vector3::new(0.5 * ft, 0.5 * fw, 0.5 * fl),
+            },
+        ]
+    }
+
+    /// The three boxes placed at `workspace_from_gripper`.
+    pub fn boxes(&self, workspace_from_gripper: &Isometry3<f32>, opening_m: f32) -> [OrientedBox; 3] {
+        self.boxes_in_gripper_frame(opening_m).map(|b| OrientedBox {
+            parent_from_box: workspace_from_gripper * b.parent_from_box,
+            half_extents: b.half_extents,
+        })
+    }
+
+    /// The closing region between the finger pads (where the object must be), gripper frame.
+    pub fn closing_region(&self, opening_m: f32) -> OrientedBox {
+        let [_, fw, fl] = self.finger_size_m;
+        OrientedBox {
+            parent_from_box: Isometry3::translation(0.0, 0.0, self.tip_beyond_tcp_m - 0.5 * fl),
+            half_extents: Vector3::new(0.5 * opening_m.clamp(0.0, self.max_opening_m), 0.5 * fw, 0.5 * fl),
+        }
+    }
+
+    /// True if any of `points` (workspace frame) lies inside the gripper boxes grown by `margin`.
+    pub fn collides_with_points<'a>(
+        &self,
+        workspace_from_gripper: &Isometry3<f32>,
+        opening_m: f32,
+        margin: f32,
+        points: impl IntoIterator<Item = &'a Point3<f32>>,
+    ) -> bool {
+        let boxes = self.boxes(workspace_from_gripper, opening_m);
+        points.into_iter().any(|p| boxes.iter().any(|b| b.contains(p, margin)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fingers_straddle_the_tcp() {
+        let g = GripperModel::default();
+        let [palm, left, right] = g.boxes_in_gripper_frame(0.04);
+        // Inner finger faces at ±20 mm.
+        assert!(((left.parent_from_box.translation.x + left.half_extents.x) + 0.02).abs() < 1e-6);
+        assert!(((right.parent_from_box.translation.x - right.half_extents.x) - 0.02).abs() < 1e-6);
+        // The TCP itself is free; a point just inside a finger is not.
+        assert!(!g.collides_with_points(&Isometry3::identity(), 0.04, 0.0, &[Point3::origin()]));
+        assert!(g.collides_with_points(&Isometry3::identity(), 0.04, 0.0, &[Point3::new(0.025, 0.0, 0.0)]));
+        // Palm sits behind the fingers.
+        assert!(palm.parent_from_box.translation.z < -g.tcp_to_palm_m());
+        // Opening is clamped to the maximum.
+        let [_, l, r] = g.boxes_in_gripper_frame(1.0);
+        let gap = (r.parent_from_box.translation.x - r.half_extents.x) - (l.parent_from_box.translation.x + l.half_extents.x);
+        assert!((gap - g.max_opening_m).abs() < 1e-6);
+    }
+}

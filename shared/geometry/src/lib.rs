@@ -1,0 +1,38 @@
+//! Core geometry of psgrasp.
+//!
+//! Frames are named in identifiers: `workspace_from_camera` maps camera-frame points into the
+//! workspace frame. The workspace frame has its origin at the minimum corner of the voxel grid,
+//! `z` pointing up (against gravity); the camera frame is the usual pinhole frame (`x` right,
+//! `y` down, `z` along the optical axis). All lengths are metres unless a name says otherwise.
+#![warn(missing_docs)]
+
+pub mod bin;
+pub mod camera;
+pub mod depth;
+pub mod grasp;
+pub mod gripper;
+pub mod workspace;
+
+pub use bin::BinModel;
+pub use camera::{CameraIntrinsics, CameraModel};
+pub use depth::{DepthError, DepthImage};
+pub use grasp::{
+    antipodal_quality, approach_angles, approach_vectors, baseline_perpendicular, ContactGrasp,
+    GraspConfiguration, N_APPROACHES,
+};
+pub use gripper::{GripperModel, OrientedBox};
+pub use workspace::Workspace;
+
+/// Errors raised when geometry inputs are invalid.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum GeometryError {
+    /// Camera intrinsics are unusable (non-positive focal length, zero size, NaN, ...).
+    #[error("invalid camera intrinsics: {0}")]
+    InvalidIntrinsics(&'static str),
+    /// The workspace description is unusable.
+    #[error("invalid workspace: {0}")]
+    InvalidWorkspace(&'static str),
+    /// A pose contains non-finite numbers.
+    #[error("invalid pose: {0}")]
+    InvalidPose(&'static str),
+}

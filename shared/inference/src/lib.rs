@@ -1,0 +1,1 @@
+//! The InferenceBackend trait and the analytic antipodal backend

@@ -1,0 +1,1 @@
+//! Zero-copy iceoryx2 messages and transport helpers of the psgrasp pipeline

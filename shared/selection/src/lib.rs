@@ -1,0 +1,1 @@
+//! Ranking and checking grasp configurations into executable picks

@@ -1,0 +1,1 @@
+//! Procedural bin scenes, depth rendering by ray casting, and dataset generation
