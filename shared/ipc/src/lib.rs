@@ -1,1 +1,34 @@
-//! Zero-copy iceoryx2 messages and transport helpers of the psgrasp pipeline
+//! Zero-copy messages and iceoryx2 transport of the psgrasp pipeline.
+//!
+//! Wire format: every message is an iceoryx2 publish-subscribe sample with the `#[repr(C)]`
+//! [`FrameHeader`] as user header and a slice payload of one element type per service:
+//!
+//! | service            | payload element            | producer          |
+//! |--------------------|----------------------------|-------------------|
+//! | `<pipeline>/depth`    | `f32` depth in metres, row-major | camera-ingest |
+//! | `<pipeline>/announce` | none (header only)       | camera-ingest     |
+//! | `<pipeline>/grid`     | `f32`: 3·N normals (channel-major) then N normalised TSDF | grid-fusion |
+//! | `<pipeline>/grasps`   | [`GraspRecord`]          | inference         |
+//! | `<pipeline>/picks`    | [`PickRecord`]           | grasp-selection   |
+//! | `<pipeline>/stats`    | [`StageStats`] (fixed size) | every stage    |
+//! | `<pipeline>/next-pick`| request-response [`NextPickRequest`] → [`NextPickResponse`] | grasp-selection |
+//!
+//! Each publish-subscribe service is paired with an event service of the same name; publishers
+//! notify after every send so subscribers sleep in a WaitSet instead of polling. The header's
+//! `version` must equal [`PROTOCOL_VERSION`]; a receiver rejects anything else. The iceoryx2
+//! type names carry the version too (`psgrasp::FrameHeader/v1`), so processes built from
+//! different protocol versions cannot even connect.
+#![warn(missing_docs)]
+
+pub mod header;
+pub mod records;
+pub mod tracker;
+pub mod transport;
+
+pub use header::{now_ns, FrameHeader, MessageKind, Stage, Stamp, StatusCode, PROTOCOL_VERSION};
+pub use records::{GraspRecord, NextPickRequest, NextPickResponse, PickRecord, StageStats};
+pub use tracker::{FrameTracker, TrackerEvent};
+pub use transport::{
+    cleanup_dead_nodes, ChannelConfig, DropPolicy, FramePublisher, FrameSubscriber, IpcError, PipelineNode,
+    ServiceNames,
+};

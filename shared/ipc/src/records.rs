@@ -1,0 +1,221 @@
+//! Payload element types (all `#[repr(C)]`, `f32`/`u32` only, no padding surprises).
+use iceoryx2::prelude::ZeroCopySend;
+use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use psgrasp_geometry::{GraspConfiguration, N_APPROACHES};
+
+/// One grasp configuration `C = (c, b, {σ_i}, w, q, κ)` (112 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("psgrasp::GraspRecord/v1")]
+pub struct GraspRecord {
+    /// Contact point, workspace frame, metres.
+    pub contact: [f32; 3],
+    /// Unit baseline.
+    pub baseline: [f32; 3],
+    /// Collision scores of the 18 approaches `a_i = R_γi b⊥`, γ_i evenly over [π/2, 3π/2].
+    pub collision_scores: [f32; N_APPROACHES],
+    /// Opening width, metres.
+    pub width: f32,
+    /// Antipodal quality.
+    pub quality: f32,
+    /// Baseline concentration κ (0 if the backend does not model it).
+    pub kappa: f32,
+    /// Reserved, zero.
+    pub reserved: f32,
+}
+
+impl From<&GraspConfiguration> for GraspRecord {
+    fn from(c: &GraspConfiguration) -> Self {
+        Self {
+            contact: c.contact.coords.into(),
+            baseline: c.baseline.into(),
+            collision_scores: c.collision_scores,
+            width: c.width,
+            quality: c.quality,
+            kappa: c.kappa,
+            reserved: 0.0,
+        }
+    }
+}
+
+impl From<&GraspRecord> for GraspConfiguration {
+    fn from(r: &GraspRecord) -> Self {
+        Self {
+            contact: Point3::from(r.contact),
+            baseline: Vector3::from(r.baseline),
+            collision_scores: r.collision_scores,
+            width: r.width,
+            quality: r.quality,
+            kappa: r.kappa,
+        }
+    }
+}
+
+/// One executable pick: gripper pose (TCP), pre-grasp pose and scores (88 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("psgrasp::PickRecord/v1")]
+pub struct PickRecord {
+    /// TCP position in the workspace frame, metres.
+    pub position: [f32; 3],
+    /// Gripper orientation quaternion xyzw (gripper x = closing direction, z = approach).
+    pub orientation_xyzw: [f32; 4],
+    /// Pre-grasp TCP position (same orientation), backed off along −approach.
+    pub pregrasp_position: [f32; 3],
+    /// Opening width, metres.
+    pub width: f32,
+    /// Antipodal quality.
+    pub quality: f32,
+    /// Collision score of the chosen approach.
+    pub collision_score: f32,
+    /// Index of the grasp configuration in the frame's grasp set.
+    pub configuration_index: u32,
+    /// Index of the approach (0..18).
+    pub approach_index: u32,
+    /// Rank in the pick order (0 = best).
+    pub rank: u32,
+    /// Contact point, workspace frame.
+    pub contact: [f32; 3],
+    /// Reserved, zero.
+    pub reserved: [u32; 3],
+}
+
+impl PickRecord {
+    /// Builds a record from poses.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        workspace_from_gripper: &Isometry3<f32>,
+        pregrasp: &Isometry3<f32>,
+        contact: &Point3<f32>,
+        width: f32,
+        quality: f32,
+        collision_score: f32,
+        configuration_index: u32,
+        approach_index: u32,
+        rank: u32,
+    ) -> Self {
+        let q = workspace_from_gripper.rotation.coords;
+        Self {
+            position: workspace_from_gripper.translation.vector.into(),
+            orientation_xyzw: [q[0], q[1], q[2], q[3]],
+            pregrasp_position: pregrasp.translation.vector.into(),
+            width,
+            quality,
+            collision_score,
+            configuration_index,
+            approach_index,
+            rank,
+            contact: contact.coords.into(),
+            reserved: [0; 3],
+        }
+    }
+
+    /// The TCP pose in the workspace frame.
+    pub fn workspace_from_gripper(&self) -> Isometry3<f32> {
+        let [x, y, z, w] = self.orientation_xyzw;
+        Isometry3::from_parts(
+            Translation3::from(Vector3::from(self.position)),
+            UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
+        )
+    }
+
+    /// The approach direction (gripper z axis) in the workspace frame.
+    pub fn approach(&self) -> Vector3<f32> {
+        self.workspace_from_gripper().rotation * Vector3::z()
+    }
+}
+
+/// Periodic statistics of one stage worker (published on `<pipeline>/stats`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("psgrasp::StageStats/v1")]
+pub struct StageStats {
+    /// [`crate::Stage`] as `u32`.
+    pub stage: u32,
+    /// Worker index.
+    pub worker: u32,
+    /// Process id.
+    pub pid: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+    /// Messages received (own shard only).
+    pub frames_in: u64,
+    /// Successful outputs published.
+    pub frames_out: u64,
+    /// Error records published (bad input, failures, lost frames).
+    pub errors: u64,
+    /// Deliveries that failed under overload (receiver buffer full with the drop policy).
+    pub dropped: u64,
+    /// Frame id of the last message handled.
+    pub last_frame_id: u64,
+    /// Total processing time in nanoseconds.
+    pub busy_ns: u64,
+    /// When these statistics were taken.
+    pub stamp_ns: u64,
+}
+
+/// A cell controller's request to grasp-selection.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("psgrasp::NextPickRequest/v1")]
+pub struct NextPickRequest {
+    /// 0 = the next pick of the latest frame; 1 = the previous pick failed, give the next one.
+    pub mode: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+}
+
+/// The answer to a [`NextPickRequest`].
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("psgrasp::NextPickResponse/v1")]
+pub struct NextPickResponse {
+    /// 0 = a pick is attached; 1 = no frame processed yet; 2 = all picks of the latest frame used.
+    pub status: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+    /// Frame the pick belongs to.
+    pub frame_id: u64,
+    /// The pick (valid when `status == 0`).
+    pub pick: PickRecord,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::size_of;
+
+    #[test]
+    fn record_sizes() {
+        assert_eq!(size_of::<GraspRecord>(), 112);
+        assert_eq!(size_of::<PickRecord>(), 88);
+        assert_eq!(size_of::<StageStats>(), 72);
+        assert_eq!(size_of::<NextPickResponse>(), 104);
+    }
+
+    #[test]
+    fn grasp_record_round_trip() {
+        let mut scores = [0.0; N_APPROACHES];
+        scores[3] = 1.0;
+        let c = GraspConfiguration {
+            contact: Point3::new(0.1, 0.2, 0.3),
+            baseline: Vector3::new(0.0, 1.0, 0.0),
+            collision_scores: scores,
+            width: 0.05,
+            quality: 0.8,
+            kappa: 40.0,
+        };
+        let r = GraspRecord::from(&c);
+        assert_eq!(GraspConfiguration::from(&r), c);
+    }
+
+    #[test]
+    fn pick_record_round_trip() {
+        let pose = Isometry3::new(Vector3::new(0.1, 0.2, 0.3), Vector3::new(0.4, -0.2, 1.0));
+        let pre = Isometry3::from_parts(Translation3::new(0.1, 0.2, 0.4), pose.rotation);
+        let r = PickRecord::new(&pose, &pre, &Point3::new(0.1, 0.2, 0.29), 0.03, 0.9, 1.0, 4, 9, 0);
+        let back = r.workspace_from_gripper();
+        assert!((back.to_homogeneous() - pose.to_homogeneous()).norm() < 1e-5);
+        assert!((r.approach() - pose.rotation * Vector3::z()).norm() < 1e-6);
+    }
+}

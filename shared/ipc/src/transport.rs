@@ -1,0 +1,363 @@
+//! iceoryx2 plumbing: a node per process, publishers that write straight into shared memory,
+//! subscribers that sleep in a WaitSet, and the drop policy under overload.
+use crate::header::FrameHeader;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::{BackpressureAction, BackpressureInfo};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
+use serde::{Deserialize, Serialize};
+use std::fmt::Debug;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Errors of the shared-memory transport.
+#[derive(Debug, thiserror::Error)]
+pub enum IpcError {
+    /// A service, node or port could not be created; the message names which and why.
+    #[error("iceoryx2 {what} failed: {detail}")]
+    Setup {
+        /// What was being created.
+        what: String,
+        /// iceoryx2's error, formatted.
+        detail: String,
+    },
+    /// Loaning or sending a sample failed.
+    #[error("sending on {service} failed: {detail}")]
+    Send {
+        /// Service name.
+        service: String,
+        /// iceoryx2's error, formatted.
+        detail: String,
+    },
+    /// Receiving failed.
+    #[error("receiving on {service} failed: {detail}")]
+    Receive {
+        /// Service name.
+        service: String,
+        /// iceoryx2's error, formatted.
+        detail: String,
+    },
+    /// An invalid service name.
+    #[error("invalid service name {0:?}")]
+    BadName(String),
+}
+
+fn setup<E: Debug>(what: impl Into<String>) -> impl FnOnce(E) -> IpcError {
+    let what = what.into();
+    move |e| IpcError::Setup { what, detail: format!("{e:?}") }
+}
+
+/// What a publisher does when a subscriber's buffer is full.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum DropPolicy {
+    /// Discard the new message for that subscriber and count it (the frame later ends as a
+    /// `Lost` error record). Keeps latency bounded: the default for live cameras.
+    #[default]
+    DropNewest,
+    /// Wait for the subscriber up to `block_timeout_ms`, then discard and count. Gives
+    /// back-pressure to the producer: the choice for replaying recorded data without loss.
+    Block,
+}
+
+/// Queue settings shared by all pipeline channels. Every process of a pipeline must use the
+/// same values: the first process to create a service fixes them.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ChannelConfig {
+    /// Messages a subscriber can queue before the drop policy applies.
+    pub subscriber_buffer: usize,
+    /// Maximum publishers per service (≥ the number of workers of a stage).
+    pub max_publishers: usize,
+    /// Maximum subscribers per service.
+    pub max_subscribers: usize,
+    /// Overload behaviour.
+    pub drop_policy: DropPolicy,
+    /// Longest time a blocking publisher waits for a full subscriber.
+    pub block_timeout_ms: u64,
+}
+
+impl Default for ChannelConfig {
+    fn default() -> Self {
+        Self { subscriber_buffer: 4, max_publishers: 8, max_subscribers: 8, drop_policy: DropPolicy::DropNewest, block_timeout_ms: 2000 }
+    }
+}
+
+/// Service names of one pipeline instance; the pipeline name isolates instances (and tests).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ServiceNames {
+    prefix: String,
+}
+
+impl ServiceNames {
+    /// Names under `psgrasp/<pipeline>/…`.
+    pub fn new(pipeline: &str) -> Self {
+        Self { prefix: format!("psgrasp/{pipeline}") }
+    }
+    /// Depth frames.
+    pub fn depth(&self) -> String {
+        format!("{}/depth", self.prefix)
+    }
+    /// Frame announcements.
+    pub fn announce(&self) -> String {
+        format!("{}/announce", self.prefix)
+    }
+    /// Normal grids.
+    pub fn grid(&self) -> String {
+        format!("{}/grid", self.prefix)
+    }
+    /// Grasp sets.
+    pub fn grasps(&self) -> String {
+        format!("{}/grasps", self.prefix)
+    }
+    /// Selected picks.
+    pub fn picks(&self) -> String {
+        format!("{}/picks", self.prefix)
+    }
+    /// Stage statistics.
+    pub fn stats(&self) -> String {
+        format!("{}/stats", self.prefix)
+    }
+    /// Next-pick request-response.
+    pub fn next_pick(&self) -> String {
+        format!("{}/next-pick", self.prefix)
+    }
+}
+
+fn service_name(name: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(name).map_err(|_| IpcError::BadName(name.to_string()))
+}
+
+/// One process's iceoryx2 node plus the pipeline's names and queue settings.
+pub struct PipelineNode {
+    node: Node<ipc::Service>,
+    /// The pipeline's service names.
+    pub names: ServiceNames,
+    /// Queue settings.
+    pub channel: ChannelConfig,
+}
+
+impl PipelineNode {
+    /// Creates the node `node_name` for pipeline `pipeline`, cleaning up resources of dead
+    /// processes first (a crashed stage must not leave the next one stuck).
+    pub fn new(node_name: &str, pipeline: &str, channel: ChannelConfig) -> Result<Self, IpcError> {
+        cleanup_dead_nodes();
+        let name = NodeName::new(node_name).map_err(|_| IpcError::BadName(node_name.to_string()))?;
+        let node = NodeBuilder::new()
+            .name(&name)
+            .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
+            .create::<ipc::Service>()
+            .map_err(setup(format!("node {node_name}")))?;
+        Ok(Self { node, names: ServiceNames::new(pipeline), channel })
+    }
+
+    /// The underlying node.
+    pub fn node(&self) -> &Node<ipc::Service> {
+        &self.node
+    }
+
+    fn pubsub<T: Debug + ZeroCopySend + 'static>(
+        &self,
+        service: &str,
+        history: usize,
+        buffer: usize,
+    ) -> Result<PubSubFactory<ipc::Service, [T], FrameHeader>, IpcError> {
+        self.node
+            .service_builder(&service_name(service)?)
+            .publish_subscribe::<[T]>()
+            .user_header::<FrameHeader>()
+            .max_publishers(self.channel.max_publishers)
+            .max_subscribers(self.channel.max_subscribers)
+            .subscriber_max_buffer_size(buffer)
+            .history_size(history)
+            .enable_safe_overflow(false)
+            .open_or_create()
+            .map_err(setup(format!("publish-subscribe service {service}")))
+    }
+
+    fn event(&self, service: &str) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, IpcError> {
+        self.node
+            .service_builder(&service_name(service)?)
+            .event()
+            .max_notifiers(self.channel.max_publishers * 2 + 4)
+            .max_listeners(self.channel.max_subscribers * 2 + 4)
+            .open_or_create()
+            .map_err(setup(format!("event service {service}")))
+    }
+
+    /// A publisher of `[T]` slices on `service`, able to loan up to `max_len` elements
+    /// (it grows on demand).
+    pub fn publisher<T: Debug + ZeroCopySend + Default + Copy + 'static>(
+        &self,
+        service: &str,
+        max_len: usize,
+    ) -> Result<FramePublisher<T>, IpcError> {
+        self.publisher_with_buffer(service, max_len, self.channel.subscriber_buffer)
+    }
+
+    /// Like [`Self::publisher`] with an explicit subscriber buffer (e.g. deep queues for tiny
+    /// announcement messages).
+    pub fn publisher_with_buffer<T: Debug + ZeroCopySend + Default + Copy + 'static>(
+        &self,
+        service: &str,
+        max_len: usize,
+        buffer: usize,
+    ) -> Result<FramePublisher<T>, IpcError> {
+        let factory = self.pubsub::<T>(service, 0, buffer)?;
+        let dropped = Arc::new(AtomicU64::new(0));
+        let counter = dropped.clone();
+        let policy = self.channel.drop_policy;
+        let timeout = Duration::from_millis(self.channel.block_timeout_ms);
+        let handler = move |info: &BackpressureInfo| -> BackpressureAction {
+            let give_up = match policy {
+                DropPolicy::DropNewest => true,
+                DropPolicy::Block => info.elapsed_time >= timeout,
+            };
+            if give_up {
+                counter.fetch_add(1, Ordering::Relaxed);
+                BackpressureAction::DiscardData
+            } else {
+                std::thread::sleep(Duration::from_micros(200));
+                BackpressureAction::Retry
+            }
+        };
+        let publisher = factory
+            .publisher_builder()
+            .initial_max_slice_len(max_len.max(1))
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .set_backpressure_handler(handler)
+            .create()
+            .map_err(setup(format!("publisher on {service}")))?;
+        let notifier = self.event(service)?.notifier_builder().create().map_err(setup(format!("notifier on {service}")))?;
+        Ok(FramePublisher { service: service.to_string(), factory, publisher, notifier, dropped })
+    }
+
+    /// A subscriber of `[T]` slices on `service`, connected immediately.
+    pub fn subscriber<T: Debug + ZeroCopySend + 'static>(&self, service: &str) -> Result<FrameSubscriber<T>, IpcError> {
+        self.subscriber_with_buffer(service, self.channel.subscriber_buffer)
+    }
+
+    /// Like [`Self::subscriber`] with an explicit buffer size.
+    pub fn subscriber_with_buffer<T: Debug + ZeroCopySend + 'static>(
+        &self,
+        service: &str,
+        buffer: usize,
+    ) -> Result<FrameSubscriber<T>, IpcError> {
+        let factory = self.pubsub::<T>(service, 0, buffer)?;
+        let subscriber =
+            factory.subscriber_builder().buffer_size(buffer).create().map_err(setup(format!("subscriber on {service}")))?;
+        // A subscriber connects on its first receive: do it now so no early frame is lost.
+        let _ = subscriber.has_samples();
+        let listener = self.event(service)?.listener_builder().create().map_err(setup(format!("listener on {service}")))?;
+        Ok(FrameSubscriber { service: service.to_string(), subscriber, listener })
+    }
+}
+
+/// Publishes header + slice messages and wakes the subscribers.
+pub struct FramePublisher<T: Debug + ZeroCopySend + 'static> {
+    service: String,
+    factory: PubSubFactory<ipc::Service, [T], FrameHeader>,
+    publisher: Publisher<ipc::Service, [T], FrameHeader>,
+    notifier: Notifier<ipc::Service>,
+    dropped: Arc<AtomicU64>,
+}
+
+impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
+    /// Loans `len` elements in shared memory, lets `fill` write them in place, sets the header
+    /// (with `element_count = len`) and sends. Returns how many subscribers received it.
+    /// If `fill` fails, nothing is sent and its error is returned.
+    pub fn send_with<E>(
+        &self,
+        mut header: FrameHeader,
+        len: usize,
+        fill: impl FnOnce(&mut [T]) -> Result<(), E>,
+    ) -> Result<Result<usize, E>, IpcError> {
+        let mut sample = self
+            .publisher
+            .loan_slice(len)
+            .map_err(|e| IpcError::Send { service: self.service.clone(), detail: format!("loan of {len} elements: {e:?}") })?;
+        if let Err(e) = fill(sample.payload_mut()) {
+            return Ok(Err(e));
+        }
+        header.element_count = len as u32;
+        *sample.user_header_mut() = header;
+        let delivered =
+            sample.send().map_err(|e| IpcError::Send { service: self.service.clone(), detail: format!("{e:?}") })?;
+        let _ = self.notifier.notify();
+        Ok(Ok(delivered))
+    }
+
+    /// Sends a copy of `items`.
+    pub fn send_slice(&self, header: FrameHeader, items: &[T]) -> Result<usize, IpcError> {
+        self.send_with::<()>(header, items.len(), |buf| {
+            buf.copy_from_slice(items);
+            Ok(())
+        })
+        .map(|r| r.unwrap_or(0))
+    }
+
+    /// Sends a header-only message (e.g. an error record).
+    pub fn send_header(&self, header: FrameHeader) -> Result<usize, IpcError> {
+        self.send_slice(header, &[])
+    }
+
+    /// Deliveries discarded under the drop policy so far.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// Subscribers currently connected to the service.
+    pub fn subscriber_count(&self) -> usize {
+        self.factory.dynamic_config().number_of_subscribers()
+    }
+}
+
+/// Receives header + slice messages; its listener goes into a WaitSet.
+pub struct FrameSubscriber<T: Debug + ZeroCopySend + 'static> {
+    service: String,
+    subscriber: Subscriber<ipc::Service, [T], FrameHeader>,
+    listener: Listener<ipc::Service>,
+}
+
+impl<T: Debug + ZeroCopySend + 'static> FrameSubscriber<T> {
+    /// The next queued message, if any. The sample borrows shared memory: no copy.
+    pub fn receive(&self) -> Result<Option<Sample<ipc::Service, [T], FrameHeader>>, IpcError> {
+        self.subscriber.receive().map_err(|e| IpcError::Receive { service: self.service.clone(), detail: format!("{e:?}") })
+    }
+
+    /// Clears pending wake-up events (call before draining with [`Self::receive`]).
+    pub fn clear_events(&self) {
+        let _ = self.listener.try_wait(|_| {});
+    }
+
+    /// Blocks up to `timeout` for a wake-up (for simple loops outside a WaitSet).
+    pub fn wait(&self, timeout: Duration) {
+        let _ = self.listener.timed_wait(|_| {}, timeout);
+    }
+
+    /// The listener to attach to a WaitSet.
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+}
+
+/// Removes shared-memory resources left behind by processes that died without cleaning up.
+/// Returns how many dead nodes were cleaned.
+pub fn cleanup_dead_nodes() -> usize {
+    let mut cleaned = 0;
+    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::<ipc::Service>::Dead(view) = state {
+            if view.try_remove_stale_resources().is_ok() {
+                cleaned += 1;
+            }
+        }
+        CallbackProgression::Continue
+    });
+    cleaned
+}
