@@ -1,1 +1,211 @@
-fn main() {}
+//! `psgrasp`: the one entry point for people — run the pipeline, the demo, the stress test.
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use psgrasp::launcher::{default_bin_dir, Supervisor};
+use psgrasp::stress;
+use psgrasp_config::PipelineConfig;
+use psgrasp_ipc::{PipelineNode, StatusCode};
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(Parser)]
+#[command(name = "psgrasp", version, about = "Dense 6-DoF grasp detection for bin picking")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Start all stages as separate processes and supervise them until Ctrl-C.
+    Up {
+        /// Pipeline configuration.
+        #[arg(long, default_value = "config/default.toml")]
+        config: PathBuf,
+    },
+    /// Run the built-in synthetic bin scene end to end and print the top grasps.
+    Demo {
+        /// Pipeline configuration (its camera section is replaced by the synthetic demo scene).
+        #[arg(long, default_value = "config/default.toml")]
+        config: PathBuf,
+        /// Frames to run.
+        #[arg(long, default_value_t = 2)]
+        frames: u64,
+        /// Scene seed.
+        #[arg(long, default_value_t = 7)]
+        seed: u64,
+        /// Grasps to print per frame.
+        #[arg(long, default_value_t = 5)]
+        top: usize,
+    },
+    /// Push frames through the live pipeline; print throughput, latency percentiles, drops and
+    /// errors, and compare the shared-memory transport with a Unix socket.
+    Stress {
+        /// Pipeline configuration.
+        #[arg(long, default_value = "config/default.toml")]
+        config: PathBuf,
+        /// Frames to push.
+        #[arg(long, default_value_t = 50)]
+        frames: u64,
+        /// Camera rate in Hz (0 = as fast as possible).
+        #[arg(long, default_value_t = 0.0)]
+        rate: f64,
+        /// Inference workers (overrides the config).
+        #[arg(long)]
+        inference_workers: Option<u32>,
+        /// Messages per payload size in the transport comparison (0 = skip it).
+        #[arg(long, default_value_t = 300)]
+        transport_iterations: usize,
+    },
+    /// Validate a configuration file and print it with all defaults filled in.
+    CheckConfig {
+        /// Pipeline configuration.
+        #[arg(default_value = "config/default.toml")]
+        config: PathBuf,
+    },
+    /// Ask a running pipeline for the next pick (as a cell controller would).
+    NextPick {
+        /// Pipeline configuration.
+        #[arg(long, default_value = "config/default.toml")]
+        config: PathBuf,
+        /// The previous pick failed: hand out the next one.
+        #[arg(long)]
+        failed: bool,
+    },
+}
+
+fn main() -> std::process::ExitCode {
+    psgrasp::runtime::init_logging();
+    match run(Cli::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Up { config } => up(config),
+        Command::Demo { config, frames, seed, top } => demo(config, frames, seed, top),
+        Command::Stress { config, frames, rate, inference_workers, transport_iterations } => {
+            let mut cfg = PipelineConfig::load(&config)?;
+            cfg.pipeline.name = format!("stress-{}", std::process::id());
+            cfg.camera.frames = frames;
+            cfg.camera.rate_hz = rate;
+            cfg.camera.synthetic.frames_per_scene = frames.max(1);
+            if let Some(n) = inference_workers {
+                cfg.pipeline.workers.inference = n;
+            }
+            cfg.validate(&config)?;
+            println!(
+                "Stress: {frames} frames at {} through {} fusion / {} inference / {} selection worker(s), drop policy {:?}",
+                if rate > 0.0 { format!("{rate} Hz") } else { "max rate".into() },
+                cfg.pipeline.workers.fusion,
+                cfg.pipeline.workers.inference,
+                cfg.pipeline.workers.selection,
+                cfg.pipeline.channel.drop_policy
+            );
+            let timeout = Duration::from_secs(600);
+            let (report, mut sup) = stress::run_frames(&cfg, frames, timeout, &default_bin_dir())?;
+            sup.shutdown(Duration::from_secs(3));
+            stress::print_report(&report, frames);
+            if transport_iterations > 0 {
+                let figures = stress::compare_transports(&[1_228_800, 4 * 262_144 * 4], transport_iterations)?;
+                stress::print_transport_table(&figures);
+            }
+            Ok(())
+        }
+        Command::CheckConfig { config } => {
+            let cfg = PipelineConfig::load(&config)?;
+            println!("# {} is valid; effective configuration:\n{}", config.display(), cfg.to_toml());
+            Ok(())
+        }
+        Command::NextPick { config, failed } => {
+            let cfg = PipelineConfig::load(&config)?;
+            let node = PipelineNode::new(&format!("{}-cli-{}", cfg.pipeline.name, std::process::id()), &cfg.pipeline.name, cfg.pipeline.channel)?;
+            let client = psgrasp::client::PickClient::connect(&node)?;
+            match client.next_pick(failed, Duration::from_secs(2))? {
+                None => anyhow::bail!("no answer from grasp-selection within 2 s: is `psgrasp up` running?"),
+                Some(r) if r.status == 1 => println!("no frame processed yet"),
+                Some(r) if r.status == 2 => println!("all picks of frame {} used; wait for the next frame", r.frame_id),
+                Some(r) => println!("{}", serde_json::to_string_pretty(&pick_json(r.frame_id, &r.pick))?),
+            }
+            Ok(())
+        }
+    }
+}
+
+fn pick_json(frame_id: u64, p: &psgrasp_ipc::PickRecord) -> serde_json::Value {
+    serde_json::json!({
+        "frame_id": frame_id,
+        "rank": p.rank,
+        "position_m": p.position,
+        "orientation_xyzw": p.orientation_xyzw,
+        "pregrasp_position_m": p.pregrasp_position,
+        "width_m": p.width,
+        "quality": p.quality,
+        "collision_score": p.collision_score,
+    })
+}
+
+fn up(config: PathBuf) -> Result<()> {
+    let cfg = PipelineConfig::load(&config)?;
+    let node = PipelineNode::new(&format!("{}-launcher", cfg.pipeline.name), &cfg.pipeline.name, cfg.pipeline.channel)?;
+    let mut sup = Supervisor::start(&config, &default_bin_dir(), false)?;
+    println!("psgrasp pipeline '{}' up ({} processes); Ctrl-C to stop", cfg.pipeline.name, sup.processes.len());
+    while node.node().wait(Duration::from_millis(200)).is_ok() {
+        for e in sup.poll()? {
+            println!("{e}");
+        }
+        if !sup.any_running() {
+            break;
+        }
+    }
+    println!("stopping…");
+    sup.shutdown(Duration::from_secs(3));
+    Ok(())
+}
+
+fn demo(config: PathBuf, frames: u64, seed: u64, top: usize) -> Result<()> {
+    let mut cfg = PipelineConfig::load(&config).with_context(|| format!("loading {}", config.display()))?;
+    cfg.pipeline.name = format!("demo-{}", std::process::id());
+    cfg.camera.source = psgrasp_config::SourceKind::Synthetic;
+    cfg.camera.frames = frames;
+    cfg.camera.rate_hz = 0.0;
+    cfg.camera.synthetic.seed = seed;
+    println!(
+        "psgrasp demo: {} synthetic bin scene(s) with {} objects, 4 processes over iceoryx2 shared memory…",
+        frames, cfg.camera.synthetic.objects
+    );
+    let (report, mut sup) = stress::run_frames(&cfg, frames, Duration::from_secs(300), &default_bin_dir())?;
+    sup.shutdown(Duration::from_secs(3));
+    anyhow::ensure!(report.outcomes.len() as u64 == frames, "only {} of {frames} frames came back", report.outcomes.len());
+    for o in report.outcomes.values() {
+        let h = &o.header;
+        if o.status() != StatusCode::Ok {
+            println!("\nframe {}: error record {:?} from {:?}: {}", o.frame_id(), o.status(), o.error_stage(), h.error_text());
+            continue;
+        }
+        println!(
+            "\nframe {}: {} executable picks; fusion {:.1} ms, inference {:.1} ms, selection {:.1} ms, end-to-end {:.1} ms",
+            o.frame_id(),
+            o.picks.len(),
+            h.span_ms(psgrasp_ipc::Stamp::FusionStart, psgrasp_ipc::Stamp::FusionEnd),
+            h.span_ms(psgrasp_ipc::Stamp::InferenceStart, psgrasp_ipc::Stamp::InferenceEnd),
+            h.span_ms(psgrasp_ipc::Stamp::SelectionStart, psgrasp_ipc::Stamp::SelectionEnd),
+            h.span_ms(psgrasp_ipc::Stamp::IngestPublished, psgrasp_ipc::Stamp::SelectionEnd),
+        );
+        println!("| rank | TCP position (m, workspace) | approach | width (mm) | quality | collision score |");
+        println!("|---|---|---|---|---|---|");
+        for p in o.picks.iter().take(top) {
+            let a = p.approach();
+            println!(
+                "| {} | ({:.3}, {:.3}, {:.3}) | ({:+.2}, {:+.2}, {:+.2}) | {:.1} | {:.2} | {:.2} |",
+                p.rank, p.position[0], p.position[1], p.position[2], a.x, a.y, a.z, p.width * 1000.0, p.quality, p.collision_score
+            );
+        }
+    }
+    Ok(())
+}

@@ -1,1 +1,395 @@
-//! Pipeline configuration: TOML loading and validation
+//! Pipeline configuration (`config/default.toml`): one TOML file describes the whole pipeline —
+//! stages and their worker counts, queues, camera source, workspace, bin, gripper and the
+//! settings of fusion, inference and selection. It is validated completely at load time, so a
+//! malformed file fails before any process starts, with the file and the offending key named.
+#![warn(missing_docs)]
+
+use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use psgrasp_fusion::FusionConfig;
+use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, GripperModel, Workspace};
+use psgrasp_inference::BackendConfig;
+use psgrasp_ipc::ChannelConfig;
+use psgrasp_selection::SelectionConfig;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Errors of loading or validating a configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        /// File path.
+        path: PathBuf,
+        /// I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The TOML is malformed or has unknown/mistyped keys.
+    #[error("malformed config {path}: {source}")]
+    Parse {
+        /// File path (or `<string>`).
+        path: PathBuf,
+        /// TOML error with line and column.
+        #[source]
+        source: toml::de::Error,
+    },
+    /// The values are inconsistent or out of range.
+    #[error("invalid config {path}: {field}: {reason}")]
+    Invalid {
+        /// File path (or `<string>`).
+        path: PathBuf,
+        /// The offending key.
+        field: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// The whole pipeline configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(default, deny_unknown_fields)]
+pub struct PipelineConfig {
+    /// Process graph and queue settings.
+    pub pipeline: PipelineSection,
+    /// Depth source.
+    pub camera: CameraSection,
+    /// The voxel grid over the bin.
+    pub workspace: Workspace,
+    /// The bin.
+    pub bin: BinModel,
+    /// The gripper.
+    pub gripper: GripperModel,
+    /// TSDF / normal-grid fusion.
+    pub fusion: FusionConfig,
+    /// Inference backend.
+    pub inference: BackendConfig,
+    /// Grasp selection.
+    pub selection: SelectionConfig,
+}
+
+/// Process graph and queues.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PipelineSection {
+    /// Name of this pipeline instance; all shared-memory services live under `psgrasp/<name>/`,
+    /// so two pipelines (or parallel tests) never interfere.
+    pub name: String,
+    /// Queue settings of every channel.
+    pub channel: ChannelConfig,
+    /// Worker processes per stage (frames are sharded by `frame_id % workers`).
+    pub workers: WorkerCounts,
+    /// A frame with no result after this long is reported as `Lost`.
+    pub loss_timeout_ms: u64,
+    /// How often stages publish statistics.
+    pub stats_interval_ms: u64,
+    /// Restart a stage that died (launcher).
+    pub restart_on_failure: bool,
+    /// Seed for every sampling step downstream of the camera (same grid + seed → same grasps).
+    pub seed: u64,
+    /// Give up on a stage that died this many times within `restart_window_s`.
+    pub max_restarts: u32,
+    /// Window for `max_restarts`.
+    pub restart_window_s: u64,
+}
+
+impl Default for PipelineSection {
+    fn default() -> Self {
+        Self {
+            name: "default".into(),
+            channel: ChannelConfig::default(),
+            workers: WorkerCounts::default(),
+            loss_timeout_ms: 10_000,
+            stats_interval_ms: 1000,
+            restart_on_failure: true,
+            seed: 0,
+            max_restarts: 5,
+            restart_window_s: 60,
+        }
+    }
+}
+
+/// Worker processes per stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct WorkerCounts {
+    /// grid-fusion workers.
+    pub fusion: u32,
+    /// inference workers.
+    pub inference: u32,
+    /// grasp-selection workers.
+    pub selection: u32,
+}
+
+impl Default for WorkerCounts {
+    fn default() -> Self {
+        Self { fusion: 1, inference: 1, selection: 1 }
+    }
+}
+
+/// Where depth frames come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CameraSection {
+    /// `synthetic` (built-in procedural bin scene) or `replay` (files).
+    pub source: SourceKind,
+    /// Frames per second; 0 = as fast as the pipeline accepts.
+    pub rate_hz: f64,
+    /// Frames to publish before stopping; 0 = run until stopped.
+    pub frames: u64,
+    /// Camera id written into every header.
+    pub source_id: u32,
+    /// Intrinsics (synthetic source; replay reads its own intrinsics file unless absent).
+    pub intrinsics: CameraIntrinsics,
+    /// Camera pose in the workspace frame; `None` = top-down above the bin at `height_above_rim_m`
+    /// (synthetic) or fitted to the dominant plane (replay).
+    pub pose: Option<PoseConfig>,
+    /// Camera height above the bin rim for the default top-down pose.
+    pub height_above_rim_m: f32,
+    /// Wait up to this long for grid-fusion to connect before publishing the first frame.
+    pub wait_for_subscribers_ms: u64,
+    /// Synthetic source settings.
+    pub synthetic: SyntheticSource,
+    /// Replay source settings.
+    pub replay: ReplaySource,
+}
+
+impl Default for CameraSection {
+    fn default() -> Self {
+        Self {
+            source: SourceKind::Synthetic,
+            rate_hz: 2.0,
+            frames: 0,
+            source_id: 0,
+            intrinsics: CameraIntrinsics::default_640x480(),
+            pose: None,
+            height_above_rim_m: 0.6,
+            wait_for_subscribers_ms: 10_000,
+            synthetic: SyntheticSource::default(),
+            replay: ReplaySource::default(),
+        }
+    }
+}
+
+/// Depth source kind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SourceKind {
+    /// Built-in procedural bin scene rendered by ray casting.
+    Synthetic,
+    /// 16-bit PNG or `.npy` depth files.
+    Replay,
+}
+
+/// Settings of the synthetic source.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SyntheticSource {
+    /// Scene seed; frame `k` uses scene `seed + k / frames_per_scene`.
+    pub seed: u64,
+    /// Objects per scene.
+    pub objects: usize,
+    /// Frames rendered from each scene before a new one is generated.
+    pub frames_per_scene: u64,
+    /// Add the simulated sensor noise.
+    pub noise: bool,
+}
+
+impl Default for SyntheticSource {
+    fn default() -> Self {
+        Self { seed: 7, objects: 8, frames_per_scene: 1, noise: false }
+    }
+}
+
+/// Settings of the replay source.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReplaySource {
+    /// A depth file or a folder of them (sorted by name).
+    pub path: PathBuf,
+    /// Intrinsics JSON/TOML (`width, height, fx, fy, cx, cy[, depth_unit_m]`); empty = use `camera.intrinsics`.
+    pub intrinsics_file: PathBuf,
+    /// Metres per depth count for 16-bit files (overridden by `depth_unit_m` in the intrinsics file).
+    pub depth_unit_m: Option<f32>,
+    /// Start again at the first file after the last.
+    pub looping: bool,
+}
+
+/// A rigid pose: translation in metres and a unit quaternion (x, y, z, w).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseConfig {
+    /// Translation (m).
+    pub translation: [f32; 3],
+    /// Rotation quaternion x, y, z, w.
+    pub rotation_xyzw: [f32; 4],
+}
+
+impl PoseConfig {
+    /// As an isometry (the quaternion is normalised).
+    pub fn isometry(&self) -> Isometry3<f32> {
+        let [x, y, z, w] = self.rotation_xyzw;
+        Isometry3::from_parts(
+            Translation3::from(Vector3::from(self.translation)),
+            UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
+        )
+    }
+}
+
+impl PipelineConfig {
+    /// Loads and validates a TOML file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.into(), source })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses and validates TOML text (`origin` names it in errors).
+    pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
+        let cfg: Self = toml::from_str(text).map_err(|source| ConfigError::Parse { path: origin.into(), source })?;
+        cfg.validate(origin)?;
+        Ok(cfg)
+    }
+
+    /// Serialises back to TOML.
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).unwrap_or_default()
+    }
+
+    /// Checks ranges and cross-field consistency.
+    pub fn validate(&self, origin: &Path) -> Result<(), ConfigError> {
+        let bad = |field: &'static str, reason: String| ConfigError::Invalid { path: origin.into(), field, reason };
+        let p = &self.pipeline;
+        if p.name.is_empty() || !p.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+            return Err(bad("pipeline.name", format!("{:?} must be non-empty [A-Za-z0-9_-]", p.name)));
+        }
+        if p.name.len() > 48 {
+            return Err(bad("pipeline.name", "longer than 48 characters".into()));
+        }
+        let w = p.workers;
+        for (field, n) in [("pipeline.workers.fusion", w.fusion), ("pipeline.workers.inference", w.inference), ("pipeline.workers.selection", w.selection)] {
+            if n == 0 || n as usize > p.channel.max_publishers {
+                return Err(bad(field, format!("{n} must be in 1..={} (channel.max_publishers)", p.channel.max_publishers)));
+            }
+        }
+        if p.channel.subscriber_buffer == 0 || p.channel.subscriber_buffer > 1024 {
+            return Err(bad("pipeline.channel.subscriber_buffer", format!("{} must be in 1..=1024", p.channel.subscriber_buffer)));
+        }
+        let max_subs_needed = (w.fusion.max(w.inference).max(w.selection) + 2) as usize;
+        if p.channel.max_subscribers < max_subs_needed {
+            return Err(bad("pipeline.channel.max_subscribers", format!("{} < {max_subs_needed} (workers + monitors)", p.channel.max_subscribers)));
+        }
+        if p.loss_timeout_ms < 100 {
+            return Err(bad("pipeline.loss_timeout_ms", "must be at least 100 ms".into()));
+        }
+        if p.stats_interval_ms == 0 {
+            return Err(bad("pipeline.stats_interval_ms", "must be > 0".into()));
+        }
+        let c = &self.camera;
+        if !(c.rate_hz.is_finite() && c.rate_hz >= 0.0) {
+            return Err(bad("camera.rate_hz", format!("{} must be ≥ 0", c.rate_hz)));
+        }
+        c.intrinsics.validate().map_err(|e| bad("camera.intrinsics", e.to_string()))?;
+        if let Some(pose) = &c.pose {
+            let finite = pose.translation.iter().chain(pose.rotation_xyzw.iter()).all(|v| v.is_finite());
+            let norm = pose.rotation_xyzw.iter().map(|v| v * v).sum::<f32>().sqrt();
+            if !finite || (norm - 1.0).abs() > 1e-2 {
+                return Err(bad("camera.pose", "translation must be finite and rotation_xyzw a unit quaternion".into()));
+            }
+        }
+        if c.source == SourceKind::Replay && c.replay.path.as_os_str().is_empty() {
+            return Err(bad("camera.replay.path", "replay source needs a path".into()));
+        }
+        if let Some(u) = c.replay.depth_unit_m {
+            if !(u.is_finite() && u > 0.0) {
+                return Err(bad("camera.replay.depth_unit_m", format!("{u} must be > 0")));
+            }
+        }
+        if c.source == SourceKind::Synthetic && (c.synthetic.objects == 0 || c.synthetic.objects > 64) {
+            return Err(bad("camera.synthetic.objects", format!("{} must be in 1..=64", c.synthetic.objects)));
+        }
+        if c.synthetic.frames_per_scene == 0 {
+            return Err(bad("camera.synthetic.frames_per_scene", "must be ≥ 1".into()));
+        }
+        self.workspace.validate().map_err(|e| bad("workspace", e.to_string()))?;
+        let g = &self.gripper;
+        let extra = [g.max_opening_m, g.tip_beyond_tcp_m];
+        let mut dims = g.finger_size_m.iter().chain(g.palm_size_m.iter()).chain(extra.iter());
+        if !dims.all(|v| v.is_finite() && *v >= 0.0) || g.max_opening_m <= 0.0 {
+            return Err(bad("gripper", "sizes must be finite, non-negative, max_opening_m > 0".into()));
+        }
+        let b = &self.bin;
+        if !b.inner_size_m.iter().all(|v| v.is_finite() && *v > 0.0) || !(b.wall_thickness_m.is_finite() && b.wall_thickness_m >= 0.0) {
+            return Err(bad("bin", "inner_size_m must be > 0 and wall_thickness_m ≥ 0".into()));
+        }
+        Ok(())
+    }
+
+    /// The camera model for the synthetic source or an explicit pose: the configured pose, or
+    /// top-down above the bin centre at `height_above_rim_m`.
+    pub fn camera_model(&self) -> CameraModel {
+        match &self.camera.pose {
+            Some(p) => CameraModel { intrinsics: self.camera.intrinsics, workspace_from_camera: p.isometry() },
+            None => {
+                let c = self.bin.floor_center;
+                CameraModel::top_down(
+                    self.camera.intrinsics,
+                    Point3::new(c.x, c.y, self.bin.rim_z() + self.camera.height_above_rim_m),
+                )
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(s: &str) -> Result<PipelineConfig, ConfigError> {
+        PipelineConfig::parse(s, Path::new("<test>"))
+    }
+
+    #[test]
+    fn shipped_default_config_is_valid() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/default.toml");
+        let cfg = PipelineConfig::load(&path).expect("config/default.toml must load");
+        assert_eq!(cfg.workspace, Workspace::default());
+    }
+
+    #[test]
+    fn empty_file_gives_defaults_and_round_trips() {
+        let cfg = parse("").unwrap();
+        assert_eq!(cfg, PipelineConfig::default());
+        assert_eq!(parse(&cfg.to_toml()).unwrap(), cfg);
+    }
+
+    #[test]
+    fn malformed_and_invalid_files_are_rejected_with_the_key() {
+        let e = parse("[pipeline\nname = 1").unwrap_err();
+        assert!(matches!(e, ConfigError::Parse { .. }), "{e}");
+        let e = parse("[pipeline]\nnmae = \"x\"").unwrap_err();
+        assert!(e.to_string().contains("nmae"), "{e}");
+        let e = parse("[pipeline.workers]\ninference = 0").unwrap_err();
+        assert!(e.to_string().contains("pipeline.workers.inference"), "{e}");
+        let e = parse("[camera.intrinsics]\nwidth = 640\nheight = 480\nfx = -1.0\nfy = 500.0\ncx = 320.0\ncy = 240.0").unwrap_err();
+        assert!(e.to_string().contains("camera.intrinsics"), "{e}");
+        let e = parse("[workspace]\ndims = [64, 64, 0]\nvoxel_size_m = 0.009").unwrap_err();
+        assert!(e.to_string().contains("workspace"), "{e}");
+        let e = parse("[pipeline]\nname = \"a/b\"").unwrap_err();
+        assert!(e.to_string().contains("pipeline.name"), "{e}");
+        let e = parse("[camera]\nsource = \"replay\"").unwrap_err();
+        assert!(e.to_string().contains("camera.replay.path"), "{e}");
+        let e = PipelineConfig::load(Path::new("/nonexistent/psgrasp.toml")).unwrap_err();
+        assert!(matches!(e, ConfigError::Read { .. }));
+    }
+
+    #[test]
+    fn default_camera_looks_down_at_the_bin() {
+        let cfg = PipelineConfig::default();
+        let cam = cfg.camera_model();
+        let eye = cam.eye();
+        assert!((eye.x - cfg.bin.floor_center.x).abs() < 1e-6);
+        assert!(eye.z > cfg.bin.rim_z());
+        let axis = cam.workspace_from_camera.rotation * Vector3::z();
+        assert!(axis.z < -0.999);
+    }
+}

@@ -1,0 +1,161 @@
+//! What every stage process shares: argument parsing, config loading, the iceoryx2 node, the
+//! WaitSet loop and the statistics it publishes.
+use anyhow::{Context, Result};
+use clap::Parser;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::prelude::*;
+use psgrasp_config::PipelineConfig;
+use psgrasp_ipc::{now_ns, FramePublisher, PipelineNode, Stage, StageStats};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Command-line arguments of a stage binary.
+#[derive(Debug, Clone, Parser)]
+pub struct StageArgs {
+    /// Pipeline configuration file.
+    #[arg(long, default_value = "config/default.toml")]
+    pub config: PathBuf,
+    /// Index of this worker among the stage's workers (frames with `frame_id % workers == worker`).
+    #[arg(long, default_value_t = 0)]
+    pub worker: u32,
+}
+
+/// Initialises logging to stderr (`RUST_LOG` overrides the level, default `info`).
+pub fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).try_init();
+    iceoryx2::prelude::set_log_level(LogLevel::Error);
+}
+
+/// A stage process's shared state.
+pub struct StageContext {
+    /// Which stage this is.
+    pub stage: Stage,
+    /// Worker index.
+    pub worker: u32,
+    /// Number of workers of this stage.
+    pub workers: u32,
+    /// The validated configuration.
+    pub config: PipelineConfig,
+    /// The iceoryx2 node.
+    pub node: PipelineNode,
+    stats_pub: FramePublisher<StageStats>,
+    /// Counters published periodically.
+    pub stats: StageStats,
+}
+
+impl StageContext {
+    /// Loads the config, validates the worker index and creates the node `<pipeline>-<stage>-<worker>`.
+    pub fn new(stage: Stage, args: &StageArgs) -> Result<Self> {
+        let config = PipelineConfig::load(&args.config)?;
+        let workers = match stage {
+            Stage::CameraIngest => 1,
+            Stage::GridFusion => config.pipeline.workers.fusion,
+            Stage::Inference => config.pipeline.workers.inference,
+            Stage::GraspSelection => config.pipeline.workers.selection,
+        };
+        anyhow::ensure!(args.worker < workers, "worker index {} but {} has {workers} worker(s)", args.worker, stage.name());
+        let node_name = format!("{}-{}-{}", config.pipeline.name, stage.name(), args.worker);
+        let node = PipelineNode::new(&node_name, &config.pipeline.name, config.pipeline.channel)
+            .with_context(|| format!("starting {node_name}"))?;
+        let stats_pub = node.publisher_with_buffer::<StageStats>(&node.names.stats(), 1, 64)?;
+        let stats = StageStats { stage: stage as u32, worker: args.worker, pid: std::process::id(), ..Default::default() };
+        Ok(Self { stage, worker: args.worker, workers, config, node, stats_pub, stats })
+    }
+
+    /// True if this worker handles `frame_id`.
+    pub fn owns(&self, frame_id: u64) -> bool {
+        frame_id % self.workers as u64 == self.worker as u64
+    }
+
+    /// Publishes the current counters.
+    pub fn publish_stats(&mut self) {
+        self.stats.stamp_ns = now_ns();
+        let header = psgrasp_ipc::FrameHeader::default();
+        if let Err(e) = self.stats_pub.send_slice(header, std::slice::from_ref(&self.stats)) {
+            tracing::warn!("stats publish failed: {e}");
+        }
+    }
+
+    /// Logs the counters (on exit).
+    pub fn log_summary(&self) {
+        let s = &self.stats;
+        tracing::info!(
+            "{}[{}] done: in {} out {} errors {} dropped {} busy {:.1} ms",
+            self.stage.name(),
+            self.worker,
+            s.frames_in,
+            s.frames_out,
+            s.errors,
+            s.dropped,
+            s.busy_ns as f64 * 1e-6
+        );
+    }
+}
+
+/// Why an event loop ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LoopExit {
+    /// SIGTERM / SIGINT.
+    Signal,
+    /// The handler asked to stop.
+    Done,
+}
+
+/// Sleeps in a WaitSet until one of `listeners` fires or `tick` passes, then calls `on_wake`
+/// (which drains all inputs and does housekeeping). Returns `Ok(Done)` when `on_wake` returns
+/// `Ok(false)`, `Ok(Signal)` on SIGTERM/SIGINT.
+pub fn run_event_loop(
+    listeners: &[&Listener<ipc::Service>],
+    tick: Duration,
+    mut on_wake: impl FnMut() -> Result<bool>,
+) -> Result<LoopExit> {
+    let waitset = WaitSetBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
+        .create::<ipc::Service>()
+        .map_err(|e| anyhow::anyhow!("creating WaitSet: {e:?}"))?;
+    let mut guards = Vec::new();
+    for l in listeners {
+        guards.push(waitset.attach_notification(*l).map_err(|e| anyhow::anyhow!("attaching listener: {e:?}"))?);
+    }
+    let _tick = waitset.attach_interval(tick).map_err(|e| anyhow::anyhow!("attaching interval: {e:?}"))?;
+    let mut result: Result<bool> = Ok(true);
+    loop {
+        let run = waitset
+            .wait_and_process_once(|_id| {
+                for l in listeners {
+                    let _ = l.try_wait(|_| {});
+                }
+                CallbackProgression::Continue
+            })
+            .map_err(|e| anyhow::anyhow!("WaitSet: {e:?}"))?;
+        match run {
+            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => return Ok(LoopExit::Signal),
+            _ => {}
+        }
+        match on_wake() {
+            Ok(true) => {}
+            Ok(false) => break,
+            Err(e) => {
+                result = Err(e);
+                break;
+            }
+        }
+    }
+    result.map(|_| LoopExit::Done)
+}
+
+/// Runs a stage's `main`: logging, and an exit code with a clear message on failure.
+pub fn stage_main(stage: Stage, run: fn(StageArgs) -> Result<()>) -> std::process::ExitCode {
+    init_logging();
+    let args = StageArgs::parse();
+    match run(args) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{} failed: {e:#}", stage.name());
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+use iceoryx2::waitset::WaitSetRunResult;

@@ -1,0 +1,308 @@
+//! Depth sources for camera-ingest: the built-in synthetic bin, file replay, and the
+//! [`DepthSource`] trait a real camera driver implements.
+//!
+//! # Adding a real camera
+//! Implement [`DepthSource`] for your driver (return frames in metres with the intrinsics and
+//! the calibrated camera pose in the workspace frame), then construct it in
+//! [`source_from_config`] under a new `camera.source` kind. Everything downstream is unchanged.
+use anyhow::{bail, Context, Result};
+use psgrasp_config::{PipelineConfig, SourceKind};
+use psgrasp_geometry::{CameraIntrinsics, CameraModel, DepthImage};
+use psgrasp_ipc::now_ns;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// One frame from a source.
+#[derive(Debug, Clone)]
+pub struct SourceFrame {
+    /// Depth in metres (0/NaN = no measurement).
+    pub depth: DepthImage,
+    /// Camera intrinsics and pose in the workspace frame for this frame.
+    pub camera: CameraModel,
+    /// Capture time (`CLOCK_REALTIME` ns).
+    pub capture_ns: u64,
+}
+
+/// A stream of depth frames.
+pub trait DepthSource: Send {
+    /// Short name for logs.
+    fn name(&self) -> &str;
+    /// The next frame; `Ok(None)` at the end of a finite stream. A frame that cannot be read
+    /// is an `Err`: camera-ingest turns it into an error record and continues.
+    fn next_frame(&mut self) -> Result<Option<SourceFrame>>;
+}
+
+/// Builds the configured source.
+pub fn source_from_config(cfg: &PipelineConfig) -> Result<Box<dyn DepthSource>> {
+    match cfg.camera.source {
+        SourceKind::Synthetic => Ok(Box::new(SyntheticSource::new(cfg))),
+        SourceKind::Replay => Ok(Box::new(ReplaySource::new(cfg)?)),
+    }
+}
+
+/// Procedural bin scenes rendered by ray casting (needs no files).
+pub struct SyntheticSource {
+    cfg: PipelineConfig,
+    camera: CameraModel,
+    frame: u64,
+    scene: Option<(u64, psgrasp_sim::Scene)>,
+}
+
+impl SyntheticSource {
+    /// A source following `camera.synthetic`.
+    pub fn new(cfg: &PipelineConfig) -> Self {
+        Self { cfg: cfg.clone(), camera: cfg.camera_model(), frame: 0, scene: None }
+    }
+
+    /// Renders frame `k` (deterministic for the configured seed).
+    pub fn render(&mut self, k: u64) -> Result<DepthImage> {
+        let s = &self.cfg.camera.synthetic;
+        let scene_seed = s.seed.wrapping_add(k / s.frames_per_scene);
+        if self.scene.as_ref().map(|(seed, _)| *seed) != Some(scene_seed) {
+            let scene = psgrasp_sim::procedural_scene(scene_seed, s.objects, &self.cfg.bin)
+                .with_context(|| format!("generating synthetic scene {scene_seed}"))?;
+            self.scene = Some((scene_seed, scene));
+        }
+        let (_, scene) = self.scene.as_ref().expect("scene was just set");
+        let clean = scene.render_depth(&self.camera);
+        Ok(if s.noise {
+            psgrasp_sim::add_dex_noise(&clean, scene_seed ^ k.rotate_left(17), &psgrasp_sim::NoiseConfig::default())
+        } else {
+            clean
+        })
+    }
+}
+
+impl DepthSource for SyntheticSource {
+    fn name(&self) -> &str {
+        "synthetic"
+    }
+
+    fn next_frame(&mut self) -> Result<Option<SourceFrame>> {
+        let k = self.frame;
+        self.frame += 1;
+        let depth = self.render(k)?;
+        Ok(Some(SourceFrame { depth, camera: self.camera, capture_ns: now_ns() }))
+    }
+}
+
+/// Intrinsics file (JSON or TOML): `width, height, fx, fy, cx, cy` and optionally `depth_unit_m`.
+#[derive(Debug, Clone, Deserialize)]
+pub struct IntrinsicsFile {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Focal length x.
+    pub fx: f32,
+    /// Focal length y.
+    pub fy: f32,
+    /// Principal point x.
+    pub cx: f32,
+    /// Principal point y.
+    pub cy: f32,
+    /// Metres per depth count.
+    pub depth_unit_m: Option<f32>,
+}
+
+impl IntrinsicsFile {
+    /// Reads and validates an intrinsics file.
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading intrinsics {}", path.display()))?;
+        let file: Self = if path.extension().is_some_and(|e| e == "toml") {
+            toml::from_str(&text).with_context(|| format!("parsing intrinsics {}", path.display()))?
+        } else {
+            serde_json::from_str(&text).with_context(|| format!("parsing intrinsics {}", path.display()))?
+        };
+        file.intrinsics().validate().with_context(|| format!("intrinsics {}", path.display()))?;
+        if let Some(u) = file.depth_unit_m {
+            anyhow::ensure!(u.is_finite() && u > 0.0, "intrinsics {}: depth_unit_m {u} must be > 0", path.display());
+        }
+        Ok(file)
+    }
+
+    /// As camera intrinsics.
+    pub fn intrinsics(&self) -> CameraIntrinsics {
+        CameraIntrinsics { width: self.width, height: self.height, fx: self.fx, fy: self.fy, cx: self.cx, cy: self.cy }
+    }
+}
+
+/// Replays 16-bit PNG or `.npy` depth files from a file or a folder.
+pub struct ReplaySource {
+    files: Vec<PathBuf>,
+    next: usize,
+    looping: bool,
+    intrinsics: CameraIntrinsics,
+    unit_m: f32,
+    pose: Option<nalgebra::Isometry3<f32>>,
+    cfg: PipelineConfig,
+}
+
+impl ReplaySource {
+    /// A source following `camera.replay`.
+    pub fn new(cfg: &PipelineConfig) -> Result<Self> {
+        let r = &cfg.camera.replay;
+        let files = list_depth_files(&r.path)?;
+        let (intrinsics, file_unit) = if r.intrinsics_file.as_os_str().is_empty() {
+            (cfg.camera.intrinsics, None)
+        } else {
+            let f = IntrinsicsFile::load(&r.intrinsics_file)?;
+            (f.intrinsics(), f.depth_unit_m)
+        };
+        let unit_m = file_unit.or(r.depth_unit_m).unwrap_or(0.001);
+        let pose = cfg.camera.pose.map(|p| p.isometry());
+        Ok(Self { files, next: 0, looping: r.looping, intrinsics, unit_m, pose, cfg: cfg.clone() })
+    }
+
+    fn camera_for(&mut self, depth: &DepthImage) -> Result<CameraModel> {
+        if let Some(pose) = self.pose {
+            return Ok(CameraModel { intrinsics: self.intrinsics, workspace_from_camera: pose });
+        }
+        // No calibrated pose: put the workspace on the dominant plane once, then keep it.
+        let camera = fit_workspace_to_plane(depth, &self.intrinsics, &self.cfg)?;
+        self.pose = Some(camera.workspace_from_camera);
+        Ok(camera)
+    }
+}
+
+/// Places the workspace on the dominant plane (table or bin floor) seen in `depth`.
+pub fn fit_workspace_to_plane(depth: &DepthImage, intrinsics: &CameraIntrinsics, cfg: &PipelineConfig) -> Result<CameraModel> {
+    let plane = psgrasp_fusion::fit_support_plane(depth, intrinsics, &psgrasp_fusion::PlaneFitConfig::default(), 0)
+        .context("fitting the support plane to place the workspace")?;
+    Ok(psgrasp_fusion::workspace_camera_from_plane(&plane, intrinsics, &cfg.workspace))
+}
+
+impl DepthSource for ReplaySource {
+    fn name(&self) -> &str {
+        "replay"
+    }
+
+    fn next_frame(&mut self) -> Result<Option<SourceFrame>> {
+        if self.next >= self.files.len() {
+            if !self.looping {
+                return Ok(None);
+            }
+            self.next = 0;
+        }
+        let path = self.files[self.next].clone();
+        self.next += 1;
+        let depth = load_depth_file(&path, self.unit_m)?;
+        if depth.width != self.intrinsics.width || depth.height != self.intrinsics.height {
+            bail!(
+                "{}: frame is {}×{} but the intrinsics say {}×{}",
+                path.display(),
+                depth.width,
+                depth.height,
+                self.intrinsics.width,
+                self.intrinsics.height
+            );
+        }
+        let camera = self.camera_for(&depth)?;
+        Ok(Some(SourceFrame { depth, camera, capture_ns: now_ns() }))
+    }
+}
+
+/// Depth files under `path` (a file, or a folder's `.png`/`.npy` files sorted by name).
+pub fn list_depth_files(path: &Path) -> Result<Vec<PathBuf>> {
+    let meta = std::fs::metadata(path).with_context(|| format!("replay path {}", path.display()))?;
+    let mut files = if meta.is_dir() {
+        std::fs::read_dir(path)?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e == "png" || e == "npy"))
+            .collect::<Vec<_>>()
+    } else {
+        vec![path.to_path_buf()]
+    };
+    files.sort();
+    anyhow::ensure!(!files.is_empty(), "no .png or .npy depth files in {}", path.display());
+    Ok(files)
+}
+
+/// Loads a 16-bit PNG (counts × `unit_m`) or a 2-D `.npy` (`<u2` counts × `unit_m`, or `<f4`/`<f8` metres).
+pub fn load_depth_file(path: &Path, unit_m: f32) -> Result<DepthImage> {
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("png") => psgrasp_fusion::load_depth_png(path, unit_m).with_context(|| format!("reading {}", path.display())),
+        Some("npy") => load_depth_npy(path, unit_m),
+        _ => bail!("{}: unsupported depth file (expected .png or .npy)", path.display()),
+    }
+}
+
+/// Minimal `.npy` reader for 2-D little-endian `u2`, `f4` or `f8` arrays in C order.
+pub fn load_depth_npy(path: &Path, unit_m: f32) -> Result<DepthImage> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let err = |m: &str| anyhow::anyhow!("{}: {m}", path.display());
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err(err("not a .npy file"));
+    }
+    let (header_len, start) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
+        _ => return Err(err("unsupported .npy version")),
+    };
+    let header = std::str::from_utf8(bytes.get(start..start + header_len).ok_or_else(|| err("truncated header"))?)
+        .map_err(|_| err("header is not UTF-8"))?;
+    if header.contains("'fortran_order': True") {
+        return Err(err("Fortran-order arrays are not supported"));
+    }
+    let descr = header.split("'descr':").nth(1).and_then(|s| s.split('\'').nth(1)).ok_or_else(|| err("no descr"))?;
+    let shape_txt = header.split("'shape':").nth(1).and_then(|s| s.split(['(', ')']).nth(1)).ok_or_else(|| err("no shape"))?;
+    let shape: Vec<usize> = shape_txt.split(',').filter(|s| !s.trim().is_empty()).map(|s| s.trim().parse()).collect::<Result<_, _>>().map_err(|_| err("bad shape"))?;
+    if shape.len() != 2 {
+        return Err(err("expected a 2-D array (height, width)"));
+    }
+    let (h, w) = (shape[0], shape[1]);
+    let data = &bytes[start + header_len..];
+    let n = h * w;
+    let values: Vec<f32> = match descr {
+        "<u2" | "|u2" => data.chunks_exact(2).take(n).map(|c| u16::from_le_bytes([c[0], c[1]]) as f32 * unit_m).collect(),
+        "<f4" => data.chunks_exact(4).take(n).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
+        "<f8" => data.chunks_exact(8).take(n).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")) as f32).collect(),
+        other => return Err(err(&format!("unsupported dtype {other} (use <u2, <f4 or <f8)"))),
+    };
+    if values.len() != n {
+        return Err(err("file is shorter than its shape says"));
+    }
+    DepthImage::from_metres(w as u32, h as u32, values).map_err(|e| err(&e.to_string()))
+}
+
+/// Writes a 2-D `<f4` `.npy` file (metres), e.g. to record synthetic frames for replay.
+pub fn save_depth_npy(path: &Path, depth: &DepthImage) -> Result<()> {
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", depth.height, depth.width);
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + depth.data.len() * 4);
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    for v in &depth.data {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    std::fs::write(path, out).with_context(|| format!("writing {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn npy_round_trip_and_bad_files() {
+        let dir = std::env::temp_dir().join(format!("psgrasp-npy-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let img = DepthImage::from_metres(3, 2, vec![0.5, 0.6, 0.0, f32::NAN, 1.0, 2.5]).unwrap();
+        let p = dir.join("a.npy");
+        save_depth_npy(&p, &img).unwrap();
+        let back = load_depth_npy(&p, 0.001).unwrap();
+        assert_eq!((back.width, back.height), (3, 2));
+        assert_eq!(back.data[4], 1.0);
+        assert!(back.data[3].is_nan());
+        std::fs::write(dir.join("bad.npy"), b"hello").unwrap();
+        assert!(load_depth_npy(&dir.join("bad.npy"), 0.001).unwrap_err().to_string().contains("not a .npy"));
+        let mut truncated = std::fs::read(&p).unwrap();
+        truncated.truncate(truncated.len() - 4);
+        std::fs::write(dir.join("short.npy"), truncated).unwrap();
+        assert!(load_depth_npy(&dir.join("short.npy"), 0.001).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

@@ -1,0 +1,214 @@
+//! Load tools: push frames through a live pipeline and report throughput, latency percentiles,
+//! drops and errors; and compare the shared-memory transport with a copying Unix socket.
+use crate::client::{FrameOutcome, PipelineMonitor};
+use crate::launcher::Supervisor;
+use anyhow::Result;
+use psgrasp_config::PipelineConfig;
+use psgrasp_ipc::{ChannelConfig, FrameHeader, PipelineNode, Stamp, StatusCode};
+use std::collections::BTreeMap;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// Writes `cfg` to a private temp file the stage processes can read.
+pub fn write_temp_config(cfg: &PipelineConfig, tag: &str) -> Result<PathBuf> {
+    let dir = std::env::temp_dir().join("psgrasp");
+    std::fs::create_dir_all(&dir)?;
+    let path = dir.join(format!("{tag}-{}.toml", std::process::id()));
+    std::fs::write(&path, cfg.to_toml())?;
+    Ok(path)
+}
+
+/// Percentile (nearest rank) of sorted values.
+pub fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let rank = ((p / 100.0) * sorted.len() as f64).ceil().max(1.0) as usize;
+    sorted[rank.min(sorted.len()) - 1]
+}
+
+/// Result of running frames through a live pipeline.
+#[derive(Debug)]
+pub struct RunReport {
+    /// All outcomes, by frame id.
+    pub outcomes: BTreeMap<u64, FrameOutcome>,
+    /// Wall time from start of the first frame to the last outcome.
+    pub wall: Duration,
+}
+
+/// Starts the pipeline of `cfg` and collects `frames` outcomes (or stops after `timeout`).
+pub fn run_frames(cfg: &PipelineConfig, frames: u64, timeout: Duration, bin_dir: &Path) -> Result<(RunReport, Supervisor)> {
+    let path = write_temp_config(cfg, &cfg.pipeline.name)?;
+    let mut monitor = PipelineMonitor::connect(&format!("{}-monitor", cfg.pipeline.name), &cfg.pipeline.name, cfg.pipeline.channel)?;
+    let mut sup = Supervisor::start(&path, bin_dir, true)?;
+    let start = Instant::now();
+    let mut outcomes = BTreeMap::new();
+    while (outcomes.len() as u64) < frames && start.elapsed() < timeout {
+        for e in sup.poll()? {
+            tracing::info!("{e}");
+        }
+        if let Some(o) = monitor.next_outcome(Duration::from_millis(100))? {
+            outcomes.insert(o.frame_id(), o);
+        }
+    }
+    monitor.drain_stats()?;
+    Ok((RunReport { outcomes, wall: start.elapsed() }, sup))
+}
+
+fn stage_spans(h: &FrameHeader) -> [(&'static str, f64); 5] {
+    [
+        ("grid-fusion", h.span_ms(Stamp::FusionStart, Stamp::FusionEnd)),
+        ("inference", h.span_ms(Stamp::InferenceStart, Stamp::InferenceEnd)),
+        ("grasp-selection", h.span_ms(Stamp::SelectionStart, Stamp::SelectionEnd)),
+        ("transport+queue", {
+            let total = h.span_ms(Stamp::IngestPublished, Stamp::SelectionEnd);
+            let work = h.span_ms(Stamp::FusionStart, Stamp::FusionEnd)
+                + h.span_ms(Stamp::InferenceStart, Stamp::InferenceEnd)
+                + h.span_ms(Stamp::SelectionStart, Stamp::SelectionEnd);
+            (total - work).max(0.0)
+        }),
+        ("end-to-end", h.span_ms(Stamp::IngestPublished, Stamp::SelectionEnd)),
+    ]
+}
+
+/// Prints the stress report as Markdown tables.
+pub fn print_report(report: &RunReport, frames: u64) {
+    let ok: Vec<&FrameOutcome> = report.outcomes.values().filter(|o| o.status() == StatusCode::Ok).collect();
+    let mut by_status: BTreeMap<String, usize> = BTreeMap::new();
+    for o in report.outcomes.values() {
+        *by_status.entry(format!("{:?}", o.status())).or_default() += 1;
+    }
+    let missing = frames.saturating_sub(report.outcomes.len() as u64);
+    println!("\n## Pipeline run\n");
+    println!("| frames sent | outcomes | ok | error records | unaccounted | wall (s) | throughput (frames/s) |");
+    println!("|---|---|---|---|---|---|---|");
+    println!(
+        "| {frames} | {} | {} | {} | {missing} | {:.2} | {:.2} |",
+        report.outcomes.len(),
+        ok.len(),
+        report.outcomes.len() - ok.len(),
+        report.wall.as_secs_f64(),
+        report.outcomes.len() as f64 / report.wall.as_secs_f64().max(1e-9)
+    );
+    println!("\nOutcomes by status: {by_status:?}");
+    println!("\n| span (ms) | p50 | p90 | p99 | max |\n|---|---|---|---|---|");
+    let names = ["grid-fusion", "inference", "grasp-selection", "transport+queue", "end-to-end"];
+    for (i, name) in names.iter().enumerate() {
+        let mut v: Vec<f64> = ok.iter().map(|o| stage_spans(&o.header)[i].1).collect();
+        v.sort_by(f64::total_cmp);
+        println!("| {name} | {:.2} | {:.2} | {:.2} | {:.2} |", percentile(&v, 50.0), percentile(&v, 90.0), percentile(&v, 99.0), v.last().copied().unwrap_or(f64::NAN));
+    }
+    let picks: Vec<usize> = ok.iter().map(|o| o.picks.len()).collect();
+    if !picks.is_empty() {
+        println!("\nPicks per frame: mean {:.1}", picks.iter().sum::<usize>() as f64 / picks.len() as f64);
+    }
+}
+
+/// Latency of one transport for one payload size.
+#[derive(Debug, Clone)]
+pub struct TransportFigure {
+    /// "iceoryx2" or "unix-socket".
+    pub transport: &'static str,
+    /// Payload bytes.
+    pub bytes: usize,
+    /// Sorted one-way latencies in microseconds.
+    pub latencies_us: Vec<f64>,
+}
+
+/// One-way latency (producer writes the payload → consumer holds all of it) for iceoryx2
+/// zero-copy publish-subscribe and for a Unix stream socket, same payloads, ping-pong paced,
+/// across two threads with separate iceoryx2 nodes.
+pub fn compare_transports(sizes: &[usize], iterations: usize) -> Result<Vec<TransportFigure>> {
+    let mut out = Vec::new();
+    for &bytes in sizes {
+        out.push(iceoryx_latency(bytes, iterations)?);
+        out.push(unix_socket_latency(bytes, iterations)?);
+    }
+    Ok(out)
+}
+
+fn iceoryx_latency(bytes: usize, iterations: usize) -> Result<TransportFigure> {
+    let pipeline = format!("xport-{}-{bytes}", std::process::id());
+    let channel = ChannelConfig { drop_policy: psgrasp_ipc::DropPolicy::Block, ..ChannelConfig::default() };
+    let n = bytes / 4;
+    let src = vec![1.0f32; n];
+    let consumer_pipeline = pipeline.clone();
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let (ack_tx, ack_rx) = std::sync::mpsc::channel::<f64>();
+    let consumer = std::thread::spawn(move || -> Result<()> {
+        let node = PipelineNode::new(&format!("{consumer_pipeline}-rx"), &consumer_pipeline, channel)?;
+        let sub = node.subscriber::<f32>(&node.names.grid())?;
+        ready_tx.send(())?;
+        let mut got = 0;
+        while got < iterations {
+            sub.wait(Duration::from_millis(100));
+            sub.clear_events();
+            while let Some(s) = sub.receive()? {
+                let now = psgrasp_ipc::now_ns();
+                let sent = s.user_header().stamps_ns[0];
+                std::hint::black_box(s.payload()[n - 1]);
+                ack_tx.send((now - sent) as f64 / 1000.0)?;
+                got += 1;
+            }
+        }
+        Ok(())
+    });
+    let node = PipelineNode::new(&format!("{pipeline}-tx"), &pipeline, channel)?;
+    let publisher = node.publisher::<f32>(&node.names.grid(), n)?;
+    ready_rx.recv()?;
+    while publisher.subscriber_count() == 0 {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let mut lat = Vec::with_capacity(iterations);
+    for _ in 0..iterations {
+        let header = FrameHeader { stamps_ns: [psgrasp_ipc::now_ns(), 0, 0, 0, 0, 0, 0, 0], ..FrameHeader::default() };
+        publisher.send_slice(header, &src)?;
+        lat.push(ack_rx.recv_timeout(Duration::from_secs(5))?);
+    }
+    consumer.join().map_err(|_| anyhow::anyhow!("consumer thread panicked"))??;
+    lat.sort_by(f64::total_cmp);
+    Ok(TransportFigure { transport: "iceoryx2 (zero-copy, WaitSet wake-up)", bytes, latencies_us: lat })
+}
+
+fn unix_socket_latency(bytes: usize, iterations: usize) -> Result<TransportFigure> {
+    let (mut tx, mut rx) = std::os::unix::net::UnixStream::pair()?;
+    let (ack_tx, ack_rx) = std::sync::mpsc::channel::<f64>();
+    let consumer = std::thread::spawn(move || -> Result<()> {
+        let mut buf = vec![0u8; bytes + 8];
+        for _ in 0..iterations {
+            rx.read_exact(&mut buf)?;
+            let sent = u64::from_le_bytes(buf[..8].try_into().expect("8 bytes"));
+            ack_tx.send((psgrasp_ipc::now_ns() - sent) as f64 / 1000.0)?;
+        }
+        Ok(())
+    });
+    let mut msg = vec![1u8; bytes + 8];
+    let mut lat = Vec::with_capacity(iterations);
+    for _ in 0..iterations {
+        msg[..8].copy_from_slice(&psgrasp_ipc::now_ns().to_le_bytes());
+        tx.write_all(&msg)?;
+        lat.push(ack_rx.recv_timeout(Duration::from_secs(5))?);
+    }
+    consumer.join().map_err(|_| anyhow::anyhow!("consumer thread panicked"))??;
+    lat.sort_by(f64::total_cmp);
+    Ok(TransportFigure { transport: "Unix socket (copying)", bytes, latencies_us: lat })
+}
+
+/// Prints the transport comparison table.
+pub fn print_transport_table(figures: &[TransportFigure]) {
+    println!("\n## Transport: producer write → consumer holds payload (µs)\n");
+    println!("| transport | payload | p50 | p90 | p99 | throughput bound (msg/s at p50) |\n|---|---|---|---|---|---|");
+    for f in figures {
+        let p50 = percentile(&f.latencies_us, 50.0);
+        println!(
+            "| {} | {:.2} MB | {:.1} | {:.1} | {:.1} | {:.0} |",
+            f.transport,
+            f.bytes as f64 / 1e6,
+            p50,
+            percentile(&f.latencies_us, 90.0),
+            percentile(&f.latencies_us, 99.0),
+            1e6 / p50
+        );
+    }
+}
