@@ -46,12 +46,14 @@ pub struct SyntheticSource {
     camera: CameraModel,
     frame: u64,
     scene: Option<(u64, psgrasp_sim::Scene)>,
+    /// Clean render of the current scene (re-rendered only when the scene changes).
+    clean: Option<DepthImage>,
 }
 
 impl SyntheticSource {
     /// A source following `camera.synthetic`.
     pub fn new(cfg: &PipelineConfig) -> Self {
-        Self { cfg: cfg.clone(), camera: cfg.camera_model(), frame: 0, scene: None }
+        Self { cfg: cfg.clone(), camera: cfg.camera_model(), frame: 0, scene: None, clean: None }
     }
 
     /// Renders frame `k` (deterministic for the configured seed).
@@ -61,14 +63,14 @@ impl SyntheticSource {
         if self.scene.as_ref().map(|(seed, _)| *seed) != Some(scene_seed) {
             let scene = psgrasp_sim::procedural_scene(scene_seed, s.objects, &self.cfg.bin)
                 .with_context(|| format!("generating synthetic scene {scene_seed}"))?;
+            self.clean = Some(scene.render_depth(&self.camera));
             self.scene = Some((scene_seed, scene));
         }
-        let (_, scene) = self.scene.as_ref().expect("scene was just set");
-        let clean = scene.render_depth(&self.camera);
+        let clean = self.clean.as_ref().expect("rendered with the scene");
         Ok(if s.noise {
-            psgrasp_sim::add_dex_noise(&clean, scene_seed ^ k.rotate_left(17), &psgrasp_sim::NoiseConfig::default())
+            psgrasp_sim::add_dex_noise(clean, scene_seed ^ k.rotate_left(17), &psgrasp_sim::NoiseConfig::default())
         } else {
-            clean
+            clean.clone()
         })
     }
 }
