@@ -4,7 +4,32 @@
 //! in [`Workspace`] index order (x-major, z fastest). The normal grid is channel-major:
 //! `normals[c · N + idx]` for channel `c ∈ {x, y, z}` and voxel `idx` — exactly the `[3, X, Y, Z]`
 //! input tensor of the network.
+//!
+//! The data flow:
+//!
+//! 1. [`TsdfVolume::integrate`] fuses depth frames (any number, from any viewpoint) into a
+//!    projective truncated signed distance field with a weighted running average.
+//! 2. [`TsdfVolume::write_normal_grid`] (or [`TsdfVolume::normal_grid`]) stores, for every voxel
+//!    of the truncation band, the unit normal of the *nearest* observed surface point (found by a
+//!    few closest-point iterations on the fused field's zero level set), pointing to free space.
+//! 3. For a real camera whose pose is unknown, [`fit_support_plane`] finds the table/bin floor and
+//!    [`workspace_camera_from_plane`] places the workspace box on it.
+//!
+//! [`fuse_normal_grid`] and [`fuse_into`] do steps 1–2 for a single frame.
 #![warn(missing_docs)]
+
+mod config;
+mod depth_png;
+mod normals;
+mod plane;
+mod tsdf;
+
+pub use config::FusionConfig;
+pub use depth_png::{load_depth_png, save_depth_png, DepthPngError};
+pub use plane::{
+    fit_support_plane, workspace_camera_from_plane, Plane, PlaneFitConfig, PlacementConfig,
+};
+pub use tsdf::{fuse_into, fuse_normal_grid, IntegrationStats, TsdfVolume};
 
 use psgrasp_geometry::Workspace;
 
@@ -42,6 +67,28 @@ pub enum FusionError {
     /// The frame saw nothing inside the workspace.
     #[error("no depth measurement falls inside the workspace")]
     EmptyView,
+    /// A configuration value is out of its valid range.
+    #[error("invalid configuration: {0}")]
+    InvalidConfig(&'static str),
+    /// Too few valid back-projected points to fit a plane.
+    #[error("only {got} valid points to fit a plane, need at least {needed}")]
+    TooFewPoints {
+        /// Points available.
+        got: usize,
+        /// Minimum required ([`PlaneFitConfig::min_inliers`]).
+        needed: usize,
+    },
+    /// RANSAC found no plane supported by enough inliers.
+    #[error("no plane with enough support: best has {inliers} of {points} points")]
+    PlaneNotFound {
+        /// Inliers of the best plane.
+        inliers: usize,
+        /// Points tested.
+        points: usize,
+    },
+    /// The plane cannot carry the workspace (degenerate normal, or the optical axis misses it).
+    #[error("cannot place the workspace on the plane: {0}")]
+    BadPlane(&'static str),
 }
 
 /// A borrowed normal grid, e.g. straight out of a shared-memory sample.
@@ -74,7 +121,12 @@ pub struct NormalGrid {
 impl NormalGrid {
     /// Borrows the grid.
     pub fn view(&self) -> NormalGridView<'_> {
-        NormalGridView { workspace: self.workspace, normals: &self.normals, tsdf: &self.tsdf, truncation_m: self.truncation_m }
+        NormalGridView {
+            workspace: self.workspace,
+            normals: &self.normals,
+            tsdf: &self.tsdf,
+            truncation_m: self.truncation_m,
+        }
     }
 }
 
@@ -94,5 +146,17 @@ impl NormalGridView<'_> {
             tsdf: self.tsdf.to_vec(),
             truncation_m: self.truncation_m,
         }
+    }
+
+    /// True if voxel `idx` lies in the truncation band (a non-zero normal is stored there).
+    #[inline]
+    pub fn in_band(&self, idx: usize) -> bool {
+        let [x, y, z] = self.normal(idx);
+        x != 0.0 || y != 0.0 || z != 0.0
+    }
+
+    /// Number of voxels that carry a normal.
+    pub fn band_voxel_count(&self) -> usize {
+        (0..self.workspace.voxel_count()).filter(|&i| self.in_band(i)).count()
     }
 }

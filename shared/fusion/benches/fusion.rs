@@ -1,0 +1,68 @@
+//! Fusion timings on one core: `cargo bench -p psgrasp-fusion`.
+//!
+//! Renders an analytic bin scene (floor, sphere, box) top-down with the test ray caster, then
+//! times `TsdfVolume::integrate` (into a freshly reset volume), `write_normal_grid` (into
+//! preallocated buffers) and the whole frame (reset + integrate + extract). Prints a Markdown
+//! table.
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use common::*;
+use nalgebra::Point3;
+use psgrasp_fusion::{FusionConfig, TsdfVolume};
+use psgrasp_geometry::{CameraIntrinsics, CameraModel};
+use std::time::Instant;
+
+fn stats(mut v: Vec<f64>) -> (f64, f64, f64) {
+    v.sort_by(|a, b| a.total_cmp(b));
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+    (mean, at(0.5), at(0.99))
+}
+
+fn main() {
+    let iterations: usize =
+        std::env::var("FUSION_BENCH_ITERS").ok().and_then(|s| s.parse().ok()).unwrap_or(200);
+    let scene = Scene { shapes: vec![floor(), sphere(), cuboid()] };
+    let ws = workspace();
+    let c = ws.extent() * 0.5;
+    let hd = CameraIntrinsics { width: 1280, height: 720, fx: 900.0, fy: 900.0, cx: 639.5, cy: 359.5 };
+    let cameras = [
+        ("640×480", top_camera()),
+        ("1280×720", CameraModel::top_down(hd, Point3::new(c.x, c.y, FLOOR_Z + 0.8))),
+    ];
+    println!("| frame | grid | stage | mean ms | p50 ms | p99 ms |");
+    println!("|---|---|---|---|---|---|");
+    for (name, cam) in cameras {
+        let depth = scene.render(&cam);
+        let mut vol = TsdfVolume::new(ws, &FusionConfig::default()).unwrap();
+        let n = ws.voxel_count();
+        let (mut normals, mut tsdf) = (vec![0.0f32; 3 * n], vec![0.0f32; n]);
+        // Warm-up (allocates the per-pixel scratch).
+        vol.integrate(&depth, &cam).unwrap();
+        let (mut t_int, mut t_ext, mut t_all) = (Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..iterations {
+            vol.reset();
+            let t0 = Instant::now();
+            std::hint::black_box(vol.integrate(&depth, &cam).unwrap());
+            t_int.push(t0.elapsed().as_secs_f64() * 1e3);
+            let t0 = Instant::now();
+            vol.write_normal_grid(&mut normals, &mut tsdf).unwrap();
+            std::hint::black_box(&normals);
+            t_ext.push(t0.elapsed().as_secs_f64() * 1e3);
+            let t0 = Instant::now();
+            vol.reset();
+            vol.integrate(&depth, &cam).unwrap();
+            vol.write_normal_grid(&mut normals, &mut tsdf).unwrap();
+            std::hint::black_box(&normals);
+            t_all.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+        let dims = ws.dims;
+        let grid = format!("{}×{}×{} @ {} mm", dims[0], dims[1], dims[2], ws.voxel_size_m * 1e3);
+        for (stage, v) in [("integrate", t_int), ("normal extraction", t_ext), ("total (reset+integrate+extract)", t_all)] {
+            let (mean, p50, p99) = stats(v);
+            println!("| {name} | {grid} | {stage} | {mean:.3} | {p50:.3} | {p99:.3} |");
+        }
+    }
+    println!("\n{iterations} iterations per row, one thread.");
+}

@@ -1,0 +1,400 @@
+//! The projective TSDF volume and its integration loop.
+use crate::normals::{self, FieldSample};
+use crate::{FusionConfig, FusionError, NormalGrid};
+use psgrasp_geometry::{depth::is_valid_depth, CameraIntrinsics, CameraModel, DepthError, DepthImage, Workspace};
+use std::sync::Mutex;
+
+/// What one call of [`TsdfVolume::integrate`] did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct IntegrationStats {
+    /// Pixels in the frame.
+    pub pixels: usize,
+    /// Pixels with a usable depth (finite, positive and inside the configured depth range).
+    pub valid_pixels: usize,
+    /// Pixels skipped because their depth is NaN, infinite, zero or negative.
+    pub invalid_pixels: usize,
+    /// Pixels with a finite positive depth outside `[min_depth_m, max_depth_m]`, also skipped.
+    pub out_of_range_pixels: usize,
+    /// Voxel updates inside the truncation band (|sdf| < truncation).
+    pub band_updates: usize,
+    /// Voxel updates in free space in front of the band (integrated as +1).
+    pub free_updates: usize,
+    /// Never-observed voxels this frame marked as occluded (behind the band).
+    pub occluded_voxels: usize,
+    /// Frames integrated into the volume so far, this one included.
+    pub frames_integrated: u32,
+}
+
+/// A projective truncated signed distance volume over a [`Workspace`].
+///
+/// Stores the truncation-normalised signed distance (in [−1, 1], positive in front of the
+/// surface) and an integration weight per voxel. Never-observed voxels read +1; voxels seen only
+/// from behind the band (occluded or inside objects) read −1 with weight 0, so a later view that
+/// observes them overrides the mark.
+///
+/// Memory: 24 bytes per voxel (6 MiB for 64³), all allocated in [`TsdfVolume::new`]; integration
+/// and [`TsdfVolume::write_normal_grid`] allocate nothing afterwards (integration reallocates a
+/// per-pixel scratch only when the frame size changes).
+pub struct TsdfVolume {
+    workspace: Workspace,
+    config: FusionConfig,
+    tsdf: Vec<f32>,
+    weight: Vec<f32>,
+    frames: u32,
+    /// Per-pixel `(depth_m, ray_scale)` of the current frame; depth 0 = unusable.
+    pixels: Vec<[f32; 2]>,
+    /// Per-pixel ray length per unit depth, `‖K⁻¹ (u, v, 1)‖`, valid for `ray_scale_for`.
+    ray_scale: Vec<f32>,
+    ray_scale_for: Option<CameraIntrinsics>,
+    /// Scratch of the normal extraction: `[F, ∂F/∂x, ∂F/∂y, ∂F/∂z]` per voxel, F in voxels.
+    field: Mutex<Vec<FieldSample>>,
+}
+
+impl std::fmt::Debug for TsdfVolume {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TsdfVolume")
+            .field("workspace", &self.workspace)
+            .field("config", &self.config)
+            .field("frames", &self.frames)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Clone for TsdfVolume {
+    fn clone(&self) -> Self {
+        Self {
+            workspace: self.workspace,
+            config: self.config,
+            tsdf: self.tsdf.clone(),
+            weight: self.weight.clone(),
+            frames: self.frames,
+            pixels: Vec::new(),
+            ray_scale: Vec::new(),
+            ray_scale_for: None,
+            field: Mutex::new(vec![[0.0; 4]; self.tsdf.len()]),
+        }
+    }
+}
+
+impl TsdfVolume {
+    /// An empty volume (every voxel unobserved, +1).
+    pub fn new(workspace: Workspace, config: &FusionConfig) -> Result<Self, FusionError> {
+        workspace.validate()?;
+        config.validate()?;
+        let n = workspace.voxel_count();
+        Ok(Self {
+            workspace,
+            config: *config,
+            tsdf: vec![1.0; n],
+            weight: vec![0.0; n],
+            frames: 0,
+            pixels: Vec::new(),
+            ray_scale: Vec::new(),
+            ray_scale_for: None,
+            field: Mutex::new(vec![[0.0; 4]; n]),
+        })
+    }
+
+    /// Forgets every observation.
+    pub fn reset(&mut self) {
+        self.tsdf.fill(1.0);
+        self.weight.fill(0.0);
+        self.frames = 0;
+    }
+
+    /// The grid geometry.
+    pub fn workspace(&self) -> &Workspace {
+        &self.workspace
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &FusionConfig {
+        &self.config
+    }
+
+    /// Truncation distance in metres.
+    pub fn truncation_m(&self) -> f32 {
+        self.config.truncation_voxels * self.workspace.voxel_size_m
+    }
+
+    /// Normalised TSDF in workspace index order (see [`crate::NormalGridView::tsdf`]).
+    pub fn tsdf(&self) -> &[f32] {
+        &self.tsdf
+    }
+
+    /// Integration weights in workspace index order (0 = never observed).
+    pub fn weights(&self) -> &[f32] {
+        &self.weight
+    }
+
+    /// Frames integrated since creation or the last [`TsdfVolume::reset`].
+    pub fn frames_integrated(&self) -> u32 {
+        self.frames
+    }
+
+    /// Fuses one depth frame seen by `camera` (pose = `workspace_from_camera`).
+    ///
+    /// Each voxel centre is projected into the frame (nearest pixel); its signed distance along
+    /// the pixel ray, `(depth − z)·‖K⁻¹(u, v, 1)‖`, is truncated to the band and merged into the
+    /// voxel's weighted running average. Pixels with NaN, zero, negative or out-of-range depth are
+    /// skipped and counted.
+    ///
+    /// Errors (the volume is left untouched): invalid camera → [`FusionError::Geometry`]; frame
+    /// size ≠ intrinsics → [`FusionError::FrameSizeMismatch`]; a data buffer of the wrong length
+    /// → [`FusionError::Depth`] (`SizeMismatch`); no usable pixel → `Depth(NoValidPixels)`;
+    /// no measured point inside the workspace box → [`FusionError::EmptyView`].
+    pub fn integrate(
+        &mut self,
+        depth: &DepthImage,
+        camera: &CameraModel,
+    ) -> Result<IntegrationStats, FusionError> {
+        camera.validate()?;
+        let k = camera.intrinsics;
+        if depth.width != k.width || depth.height != k.height {
+            return Err(FusionError::FrameSizeMismatch {
+                got_w: depth.width,
+                got_h: depth.height,
+                want_w: k.width,
+                want_h: k.height,
+            });
+        }
+        let expected = k.pixel_count();
+        if depth.data.len() != expected {
+            return Err(DepthError::SizeMismatch {
+                got: depth.data.len(),
+                expected,
+                width: depth.width,
+                height: depth.height,
+            }
+            .into());
+        }
+        let mut stats = self.prepare_pixels(depth, &k);
+        if stats.valid_pixels == 0 {
+            if stats.out_of_range_pixels == 0 {
+                return Err(DepthError::NoValidPixels.into());
+            }
+            return Err(FusionError::EmptyView);
+        }
+        if !self.sees_workspace(camera) {
+            return Err(FusionError::EmptyView);
+        }
+        self.integrate_prepared(camera, &mut stats);
+        self.frames = self.frames.saturating_add(1);
+        stats.frames_integrated = self.frames;
+        Ok(stats)
+    }
+
+    /// Copies the frame into the `(depth, ray scale)` scratch, zeroing unusable pixels.
+    fn prepare_pixels(&mut self, depth: &DepthImage, k: &CameraIntrinsics) -> IntegrationStats {
+        let n = k.pixel_count();
+        if self.ray_scale_for != Some(*k) || self.ray_scale.len() != n {
+            self.ray_scale.clear();
+            self.ray_scale.reserve(n);
+            for v in 0..k.height {
+                let b = (v as f32 - k.cy) / k.fy;
+                for u in 0..k.width {
+                    let a = (u as f32 - k.cx) / k.fx;
+                    self.ray_scale.push((1.0 + a * a + b * b).sqrt());
+                }
+            }
+            self.ray_scale_for = Some(*k);
+        }
+        self.pixels.resize(n, [0.0; 2]);
+        let (lo, hi) = (self.config.min_depth_m, self.config.max_depth_m);
+        let mut valid = 0usize;
+        let mut invalid = 0usize;
+        for ((out, &d), &scale) in self.pixels.iter_mut().zip(&depth.data).zip(&self.ray_scale) {
+            if !is_valid_depth(d) {
+                invalid += 1;
+                *out = [0.0, scale];
+            } else if d < lo || d > hi {
+                *out = [0.0, scale];
+            } else {
+                valid += 1;
+                *out = [d, scale];
+            }
+        }
+        IntegrationStats {
+            pixels: n,
+            valid_pixels: valid,
+            invalid_pixels: invalid,
+            out_of_range_pixels: n - valid - invalid,
+            ..IntegrationStats::default()
+        }
+    }
+
+    /// True if some usable pixel back-projects into the workspace box. Checks a sparse lattice
+    /// first (almost always enough), then every pixel.
+    fn sees_workspace(&self, camera: &CameraModel) -> bool {
+        let k = &camera.intrinsics;
+        let iso = camera.workspace_from_camera;
+        let ext = self.workspace.extent();
+        let w = k.width as usize;
+        let inside = |idx: usize| {
+            let d = self.pixels[idx][0];
+            if d <= 0.0 {
+                return false;
+            }
+            let (u, v) = ((idx % w) as f32, (idx / w) as f32);
+            let p = iso * k.deproject(u, v, d);
+            (0.0..ext.x).contains(&p.x) && (0.0..ext.y).contains(&p.y) && (0.0..ext.z).contains(&p.z)
+        };
+        (0..self.pixels.len()).step_by(61).any(inside) || (0..self.pixels.len()).any(inside)
+    }
+
+    /// The hot loop: one pass over all voxels, column by column (z fastest).
+    fn integrate_prepared(&mut self, camera: &CameraModel, stats: &mut IntegrationStats) {
+        let k = camera.intrinsics;
+        let camera_from_workspace = camera.workspace_from_camera.inverse();
+        let r = camera_from_workspace.rotation.to_rotation_matrix().into_inner();
+        let t = camera_from_workspace.translation.vector;
+        let s = self.workspace.voxel_size_m;
+        let [nx, ny, nz] = self.workspace.dims.map(|d| d as usize);
+        let trunc = self.truncation_m();
+        let inv_trunc = 1.0 / trunc;
+        let max_w = self.config.max_weight;
+        let carve = self.config.carve_free_space;
+        let (fx, fy) = (k.fx, k.fy);
+        // +0.5 turns truncation toward zero into rounding to the nearest pixel centre.
+        let (cx, cy) = (k.cx + 0.5, k.cy + 0.5);
+        let (wf, hf) = (k.width as f32, k.height as f32);
+        let w = k.width as usize;
+        let step = [r[(0, 2)] * s, r[(1, 2)] * s, r[(2, 2)] * s];
+        let near = 1e-4f32;
+        let pixels = &self.pixels[..];
+        let (mut band, mut free, mut occluded) = (0usize, 0usize, 0usize);
+        for i in 0..nx {
+            for j in 0..ny {
+                let (px, py, pz) = ((i as f32 + 0.5) * s, (j as f32 + 0.5) * s, 0.5 * s);
+                let base = [
+                    r[(0, 0)] * px + r[(0, 1)] * py + r[(0, 2)] * pz + t.x,
+                    r[(1, 0)] * px + r[(1, 1)] * py + r[(1, 2)] * pz + t.y,
+                    r[(2, 0)] * px + r[(2, 1)] * py + r[(2, 2)] * pz + t.z,
+                ];
+                let col = (i * ny + j) * nz;
+                let tsdf = &mut self.tsdf[col..col + nz];
+                let weight = &mut self.weight[col..col + nz];
+                for (kk, (ts, wt)) in tsdf.iter_mut().zip(weight.iter_mut()).enumerate() {
+                    let kf = kk as f32;
+                    let z = base[2] + kf * step[2];
+                    if z <= near {
+                        continue;
+                    }
+                    let inv_z = 1.0 / z;
+                    let uf = (base[0] + kf * step[0]) * inv_z * fx + cx;
+                    let vf = (base[1] + kf * step[1]) * inv_z * fy + cy;
+                    if !(uf >= 0.0 && uf < wf && vf >= 0.0 && vf < hf) {
+                        continue;
+                    }
+                    let [d, ray] = pixels[vf as usize * w + uf as usize];
+                    if d <= 0.0 {
+                        continue;
+                    }
+                    let sdf = (d - z) * ray;
+                    if sdf < -trunc {
+                        if *wt == 0.0 && *ts != -1.0 {
+                            *ts = -1.0;
+                            occluded += 1;
+                        }
+                        continue;
+                    }
+                    let value = sdf * inv_trunc;
+                    let value = if value >= 1.0 {
+                        if !carve {
+                            continue;
+                        }
+                        free += 1;
+                        1.0
+                    } else {
+                        band += 1;
+                        value
+                    };
+                    let w0 = *wt;
+                    *ts = (*ts * w0 + value) / (w0 + 1.0);
+                    *wt = (w0 + 1.0).min(max_w);
+                }
+            }
+        }
+        stats.band_updates = band;
+        stats.free_updates = free;
+        stats.occluded_voxels = occluded;
+    }
+
+    /// Extracts the normal grid into new buffers.
+    pub fn normal_grid(&self) -> NormalGrid {
+        let n = self.workspace.voxel_count();
+        let mut normals = vec![0.0; 3 * n];
+        let mut tsdf = vec![0.0; n];
+        self.extract(&mut normals, &mut tsdf);
+        NormalGrid { workspace: self.workspace, normals, tsdf, truncation_m: self.truncation_m() }
+    }
+
+    /// Writes the normal grid straight into caller buffers (e.g. a shared-memory loan), without
+    /// allocating: `normals_out` is channel-major (`3 · N`), `tsdf_out` has `N` values. Every
+    /// element is overwritten.
+    pub fn write_normal_grid(
+        &self,
+        normals_out: &mut [f32],
+        tsdf_out: &mut [f32],
+    ) -> Result<(), FusionError> {
+        check_buffers(&self.workspace, normals_out, tsdf_out)?;
+        self.extract(normals_out, tsdf_out);
+        Ok(())
+    }
+
+    fn extract(&self, normals_out: &mut [f32], tsdf_out: &mut [f32]) {
+        // The scratch holds no state between calls: a poisoned lock is harmless.
+        let mut field = self.field.lock().unwrap_or_else(|e| e.into_inner());
+        tsdf_out.copy_from_slice(&self.tsdf);
+        normals::extract(
+            &self.workspace,
+            &self.config,
+            &self.tsdf,
+            &self.weight,
+            &mut field,
+            normals_out,
+        );
+    }
+}
+
+fn check_buffers(ws: &Workspace, normals: &[f32], tsdf: &[f32]) -> Result<(), FusionError> {
+    let n = ws.voxel_count();
+    if normals.len() != 3 * n {
+        return Err(FusionError::BufferSize { name: "normals", got: normals.len(), expected: 3 * n });
+    }
+    if tsdf.len() != n {
+        return Err(FusionError::BufferSize { name: "tsdf", got: tsdf.len(), expected: n });
+    }
+    Ok(())
+}
+
+/// One-shot: fuses a single frame and returns its normal grid.
+pub fn fuse_normal_grid(
+    depth: &DepthImage,
+    camera: &CameraModel,
+    workspace: &Workspace,
+    config: &FusionConfig,
+) -> Result<NormalGrid, FusionError> {
+    let mut volume = TsdfVolume::new(*workspace, config)?;
+    volume.integrate(depth, camera)?;
+    Ok(volume.normal_grid())
+}
+
+/// One-shot into caller buffers (see [`TsdfVolume::write_normal_grid`]). Allocates a temporary
+/// volume; a long-running stage should keep a [`TsdfVolume`] and call `reset`/`integrate`/
+/// `write_normal_grid` instead. Buffer sizes are checked before any work.
+pub fn fuse_into(
+    depth: &DepthImage,
+    camera: &CameraModel,
+    workspace: &Workspace,
+    config: &FusionConfig,
+    normals_out: &mut [f32],
+    tsdf_out: &mut [f32],
+) -> Result<IntegrationStats, FusionError> {
+    workspace.validate()?;
+    check_buffers(workspace, normals_out, tsdf_out)?;
+    let mut volume = TsdfVolume::new(*workspace, config)?;
+    let stats = volume.integrate(depth, camera)?;
+    volume.write_normal_grid(normals_out, tsdf_out)?;
+    Ok(stats)
+}
