@@ -1,1 +1,344 @@
-//! The InferenceBackend trait and the analytic antipodal backend
+//! Grasp inference: normal grid → grasp configurations.
+//!
+//! Every backend implements [`InferenceBackend`]: it takes one [`NormalGridView`] (the output of
+//! fusion) and returns dense [`GraspConfiguration`]s — a contact point, a baseline, 18 approach
+//! vectors with collision scores, an opening width, an antipodal quality and a concentration `κ`.
+//! Backends are built from a [`BackendConfig`] (TOML/JSON, tagged by `kind`) with
+//! [`backend_from_config`]; the learned ONNX backends will be further `kind`s.
+//!
+//! The crate also holds what backends and grasp selection share:
+//!
+//! - [`OccupancyGrid`] / [`SceneCollisionChecker`]: the observed scene as occupied voxels and a fast
+//!   test of the gripper boxes against them;
+//! - [`validate_grid`]: the input checks every backend runs first;
+//! - [`synthetic`]: exact normal grids of analytic scenes (boxes and cylinders on a floor) for tests,
+//!   benchmarks and demos that must not depend on the fusion implementation.
+//!
+//! The analytic backend ([`AnalyticBackend`]) is the GPD-style geometric baseline: antipodal contact
+//! pairs found by casting rays through the TSDF, collision scores from the occupancy grid.
+#![warn(missing_docs)]
+
+pub mod analytic;
+pub mod occupancy;
+pub mod synthetic;
+
+pub use analytic::{AnalyticBackend, AnalyticConfig, AnalyticStats, ContactRegion};
+pub use occupancy::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
+
+use psgrasp_fusion::NormalGridView;
+use psgrasp_geometry::{GeometryError, GraspConfiguration, GripperModel};
+use serde::{Deserialize, Serialize};
+
+/// Largest |normalised TSDF| accepted by [`validate_grid`]; values are defined in [−1, 1] and this
+/// leaves room for rounding in producers.
+pub const TSDF_RANGE_TOLERANCE: f32 = 1e-3;
+
+/// Errors raised by inference backends and the occupancy grid.
+#[derive(Debug, thiserror::Error)]
+pub enum InferenceError {
+    /// The grid's workspace description is unusable (zero dimension, bad voxel size).
+    #[error("invalid workspace: {0}")]
+    Workspace(#[from] GeometryError),
+    /// A grid channel does not have the length its workspace implies.
+    #[error("grid {channel} has {got} values, the workspace needs {expected}")]
+    GridSizeMismatch {
+        /// Which buffer: `"tsdf"` or `"normals"`.
+        channel: &'static str,
+        /// Values received.
+        got: usize,
+        /// Values required by the workspace (N for the TSDF, 3·N for the normals).
+        expected: usize,
+    },
+    /// The grid holds a NaN or infinity.
+    #[error("grid {channel} holds a non-finite value at index {index}")]
+    NonFiniteInput {
+        /// Which buffer: `"tsdf"` or `"normals"`.
+        channel: &'static str,
+        /// First offending index into that buffer.
+        index: usize,
+    },
+    /// A normalised TSDF value lies outside [−1, 1].
+    #[error("normalised TSDF value {value} at voxel {index} is outside [-1, 1]")]
+    TsdfOutOfRange {
+        /// Voxel index.
+        index: usize,
+        /// The value found.
+        value: f32,
+    },
+    /// The truncation distance is not a positive finite number.
+    #[error("truncation distance must be positive and finite, got {0} m")]
+    InvalidTruncation(f32),
+    /// The gripper model is unusable (non-positive or non-finite sizes).
+    #[error("invalid gripper model: {0}")]
+    InvalidGripper(&'static str),
+    /// A configuration value is out of its valid range.
+    #[error("invalid configuration field `{field}`: {reason}")]
+    InvalidConfig {
+        /// Name of the field.
+        field: &'static str,
+        /// What the valid range is.
+        reason: &'static str,
+    },
+    /// A backend failed for a reason of its own (model file, runtime, device ...).
+    #[error("backend `{backend}` failed")]
+    Backend {
+        /// The backend's [`InferenceBackend::name`].
+        backend: String,
+        /// The underlying error.
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync + 'static>,
+    },
+}
+
+/// A grasp inference backend: one normal grid in, grasp configurations out.
+pub trait InferenceBackend: Send {
+    /// Short name for logs and records, e.g. "analytic".
+    fn name(&self) -> &str;
+    /// Grasp configurations for one normal grid; `seed` makes any sampling deterministic per frame.
+    fn infer(
+        &mut self,
+        grid: &NormalGridView<'_>,
+        seed: u64,
+    ) -> Result<Vec<GraspConfiguration>, InferenceError>;
+}
+
+/// Which backend to run and its settings; `kind` selects the variant (`kind = "analytic"`), the
+/// other keys are that backend's fields (all optional, defaults apply).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum BackendConfig {
+    /// The geometric antipodal backend ([`AnalyticBackend`]).
+    Analytic(AnalyticConfig),
+}
+
+impl Default for BackendConfig {
+    fn default() -> Self {
+        Self::Analytic(AnalyticConfig::default())
+    }
+}
+
+impl BackendConfig {
+    /// The `kind` tag of this configuration.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::Analytic(_) => "analytic",
+        }
+    }
+}
+
+/// Builds the backend described by `cfg` for `gripper`, validating both.
+pub fn backend_from_config(
+    cfg: &BackendConfig,
+    gripper: GripperModel,
+) -> Result<Box<dyn InferenceBackend>, InferenceError> {
+    match cfg {
+        BackendConfig::Analytic(c) => Ok(Box::new(AnalyticBackend::new(c.clone(), gripper)?)),
+    }
+}
+
+/// Checks a normal grid before inference: valid workspace, buffer lengths, finite values, TSDF in
+/// [−1, 1] (up to [`TSDF_RANGE_TOLERANCE`]) and a positive truncation distance.
+pub fn validate_grid(grid: &NormalGridView<'_>) -> Result<(), InferenceError> {
+    grid.workspace.validate()?;
+    let n = grid.workspace.voxel_count();
+    if grid.tsdf.len() != n {
+        return Err(InferenceError::GridSizeMismatch {
+            channel: "tsdf",
+            got: grid.tsdf.len(),
+            expected: n,
+        });
+    }
+    if grid.normals.len() != 3 * n {
+        return Err(InferenceError::GridSizeMismatch {
+            channel: "normals",
+            got: grid.normals.len(),
+            expected: 3 * n,
+        });
+    }
+    if !(grid.truncation_m.is_finite() && grid.truncation_m > 0.0) {
+        return Err(InferenceError::InvalidTruncation(grid.truncation_m));
+    }
+    if let Some(index) = grid.normals.iter().position(|v| !v.is_finite()) {
+        return Err(InferenceError::NonFiniteInput {
+            channel: "normals",
+            index,
+        });
+    }
+    for (index, &value) in grid.tsdf.iter().enumerate() {
+        if !value.is_finite() {
+            return Err(InferenceError::NonFiniteInput {
+                channel: "tsdf",
+                index,
+            });
+        }
+        if value.abs() > 1.0 + TSDF_RANGE_TOLERANCE {
+            return Err(InferenceError::TsdfOutOfRange { index, value });
+        }
+    }
+    Ok(())
+}
+
+/// Checks that a gripper model has positive finite sizes.
+pub fn validate_gripper(gripper: &GripperModel) -> Result<(), InferenceError> {
+    let sizes = gripper
+        .finger_size_m
+        .iter()
+        .chain(gripper.palm_size_m.iter())
+        .chain(std::iter::once(&gripper.max_opening_m));
+    for &v in sizes {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(InferenceError::InvalidGripper(
+                "sizes and max opening must be positive and finite",
+            ));
+        }
+    }
+    if !gripper.tip_beyond_tcp_m.is_finite()
+        || gripper.tip_beyond_tcp_m < 0.0
+        || gripper.tip_beyond_tcp_m > gripper.finger_size_m[2]
+    {
+        return Err(InferenceError::InvalidGripper(
+            "tip_beyond_tcp_m must lie in [0, finger length]",
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use psgrasp_fusion::NormalGrid;
+    use psgrasp_geometry::Workspace;
+
+    fn small_grid() -> NormalGrid {
+        let workspace = Workspace {
+            dims: [4, 5, 6],
+            voxel_size_m: 0.01,
+        };
+        let n = workspace.voxel_count();
+        NormalGrid {
+            workspace,
+            normals: vec![0.0; 3 * n],
+            tsdf: vec![1.0; n],
+            truncation_m: 0.03,
+        }
+    }
+
+    #[test]
+    fn valid_grid_passes() {
+        assert!(validate_grid(&small_grid().view()).is_ok());
+    }
+
+    #[test]
+    fn bad_grids_are_reported_precisely() {
+        let mut g = small_grid();
+        g.tsdf.pop();
+        assert!(matches!(
+            validate_grid(&g.view()),
+            Err(InferenceError::GridSizeMismatch {
+                channel: "tsdf",
+                got: 119,
+                expected: 120
+            })
+        ));
+
+        let mut g = small_grid();
+        g.normals.push(0.0);
+        assert!(matches!(
+            validate_grid(&g.view()),
+            Err(InferenceError::GridSizeMismatch {
+                channel: "normals",
+                ..
+            })
+        ));
+
+        let mut g = small_grid();
+        g.tsdf[17] = f32::NAN;
+        assert!(matches!(
+            validate_grid(&g.view()),
+            Err(InferenceError::NonFiniteInput {
+                channel: "tsdf",
+                index: 17
+            })
+        ));
+
+        let mut g = small_grid();
+        g.normals[200] = f32::INFINITY;
+        assert!(matches!(
+            validate_grid(&g.view()),
+            Err(InferenceError::NonFiniteInput {
+                channel: "normals",
+                index: 200
+            })
+        ));
+
+        let mut g = small_grid();
+        g.tsdf[3] = -1.5;
+        assert!(matches!(
+            validate_grid(&g.view()),
+            Err(InferenceError::TsdfOutOfRange { index: 3, .. })
+        ));
+
+        let mut g = small_grid();
+        g.truncation_m = 0.0;
+        assert!(matches!(
+            validate_grid(&g.view()),
+            Err(InferenceError::InvalidTruncation(_))
+        ));
+
+        let mut g = small_grid();
+        g.workspace.dims = [0, 5, 6];
+        assert!(matches!(
+            validate_grid(&g.view()),
+            Err(InferenceError::Workspace(_))
+        ));
+    }
+
+    #[test]
+    fn backend_config_parses_from_toml_with_defaults() {
+        let cfg: BackendConfig =
+            toml::from_str("kind = \"analytic\"\nmin_quality = 0.7\n").unwrap();
+        let BackendConfig::Analytic(a) = &cfg;
+        assert_eq!(a.min_quality, 0.7);
+        assert_eq!(
+            a.max_configurations,
+            AnalyticConfig::default().max_configurations
+        );
+        assert_eq!(cfg.kind(), "analytic");
+        assert!(toml::from_str::<BackendConfig>("kind = \"onnx-nope\"\n").is_err());
+        let with_region: BackendConfig = toml::from_str(
+            "kind = \"analytic\"\n[contact_region]\nmin_m = [0.0, 0.1, 0.02]\nmax_m = [0.5, 0.4, 0.3]\n",
+        )
+        .unwrap();
+        let BackendConfig::Analytic(a) = &with_region;
+        assert_eq!(a.contact_region.unwrap().max_m, [0.5, 0.4, 0.3]);
+        assert!(
+            toml::from_str::<BackendConfig>("kind = \"analytic\"\nmin_qualty = 0.7\n").is_err(),
+            "typos must not be ignored"
+        );
+        let backend = backend_from_config(&cfg, GripperModel::default()).unwrap();
+        assert_eq!(backend.name(), "analytic");
+    }
+
+    #[test]
+    fn invalid_backend_settings_are_rejected() {
+        let cfg = BackendConfig::Analytic(AnalyticConfig {
+            min_quality: 1.5,
+            ..AnalyticConfig::default()
+        });
+        assert!(matches!(
+            backend_from_config(&cfg, GripperModel::default()),
+            Err(InferenceError::InvalidConfig {
+                field: "min_quality",
+                ..
+            })
+        ));
+        let gripper = GripperModel {
+            max_opening_m: -0.1,
+            ..GripperModel::default()
+        };
+        assert!(matches!(
+            backend_from_config(&BackendConfig::default(), gripper),
+            Err(InferenceError::InvalidGripper(_))
+        ));
+    }
+}
