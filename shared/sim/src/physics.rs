@@ -1,0 +1,231 @@
+//! Dropping objects into the bin and letting them settle, with rapier3d.
+use crate::convert::{pose_from_glam, pose_to_glam, vec_to_glam};
+use crate::mesh::MeshLibrary;
+use crate::objects::{bounding_radius, ObjectSpec};
+use crate::scene::{validate_bin, SceneDescription, SceneObject};
+use crate::SimError;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use psgrasp_geometry::BinModel;
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rapier3d::prelude::{
+    ColliderBuilder, PhysicsWorld, RigidBodyBuilder, RigidBodyHandle, SharedShape,
+};
+use serde::{Deserialize, Serialize};
+
+/// Settings of the drop-and-settle simulation.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SettleConfig {
+    /// Physics time step in seconds.
+    pub dt_s: f32,
+    /// Simulated time limit; the scene is taken as it is when it runs out (rolling bodies).
+    pub max_time_s: f32,
+    /// A body is at rest below this linear speed (m/s) ...
+    pub rest_linear_speed: f32,
+    /// ... and this angular speed (rad/s).
+    pub rest_angular_speed: f32,
+    /// Gap between the rim and the lowest spawned object, and between stacked spawns (m).
+    pub spawn_gap_m: f32,
+    /// Friction coefficient of all colliders.
+    pub friction: f32,
+    /// Restitution of all colliders.
+    pub restitution: f32,
+    /// Object density (kg/m³).
+    pub density: f32,
+    /// Extra thickness given to the bin's physics walls, outward only, against tunnelling (m).
+    pub wall_padding_m: f32,
+}
+
+impl Default for SettleConfig {
+    fn default() -> Self {
+        Self {
+            dt_s: 1.0 / 100.0,
+            max_time_s: 4.0,
+            rest_linear_speed: 0.01,
+            rest_angular_speed: 0.1,
+            spawn_gap_m: 0.01,
+            friction: 0.7,
+            restitution: 0.05,
+            density: 500.0,
+            wall_padding_m: 0.05,
+        }
+    }
+}
+
+/// What happened during settling.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SettleReport {
+    /// Simulated seconds.
+    pub simulated_s: f32,
+    /// True if every body came to rest before the time limit.
+    pub at_rest: bool,
+    /// Objects dropped.
+    pub dropped: usize,
+    /// Objects removed because they ended outside the bin.
+    pub removed: usize,
+}
+
+/// Drops `objects` (already scaled) into `bin` from random poses and simulates until everything
+/// rests or the time limit runs out. Objects that end outside the bin are removed. Deterministic
+/// for a given `rng` state on a given build.
+pub fn drop_and_settle(
+    bin: &BinModel,
+    objects: &[ObjectSpec],
+    meshes: &MeshLibrary,
+    config: &SettleConfig,
+    rng: &mut ChaCha8Rng,
+) -> Result<(SceneDescription, SettleReport), SimError> {
+    validate_bin(bin)?;
+    if !(config.dt_s > 0.0
+        && config.dt_s.is_finite()
+        && config.max_time_s.is_finite()
+        && config.max_time_s >= 0.0)
+    {
+        return Err(SimError::InvalidConfig {
+            reason: "settle dt_s must be > 0 and max_time_s >= 0",
+        });
+    }
+    let mut world = PhysicsWorld::new();
+    world.gravity = vec_to_glam(&Vector3::new(0.0, 0.0, -9.81));
+    world.integration_parameters.dt = config.dt_s;
+
+    // The bin, padded outward so that fast objects cannot tunnel through its thin walls.
+    let pad = config.wall_padding_m.max(0.0);
+    let outward = [
+        Vector3::new(0.0, 0.0, -1.0),
+        -Vector3::x(),
+        Vector3::x(),
+        -Vector3::y(),
+        Vector3::y(),
+    ];
+    for (b, dir) in bin.boxes().iter().zip(outward) {
+        let half = b.half_extents + dir.abs() * (0.5 * pad);
+        let centre = b.parent_from_box.translation.vector + dir * (0.5 * pad);
+        let collider = ColliderBuilder::new(SharedShape::cuboid(half.x, half.y, half.z))
+            .position(pose_to_glam(&Isometry3::from_parts(
+                Translation3::from(centre),
+                UnitQuaternion::identity(),
+            )))
+            .friction(config.friction)
+            .restitution(config.restitution)
+            .build();
+        world.insert_collider(collider, None);
+    }
+
+    // Spawn poses: random xy over the bin footprint, stacked in z without overlap.
+    let c = bin.floor_center;
+    let [lx, ly, _] = bin.inner_size_m;
+    let mut placed: Vec<(Vector3<f32>, f32)> = Vec::new();
+    let mut handles: Vec<RigidBodyHandle> = Vec::new();
+    for spec in objects {
+        let shape = spec.build_physics_shape(meshes)?;
+        let r = bounding_radius(&shape);
+        let hx = (0.5 * lx - r).max(0.0);
+        let hy = (0.5 * ly - r).max(0.0);
+        let x = c.x
+            + if hx > 0.0 {
+                rng.random_range(-hx..=hx)
+            } else {
+                0.0
+            };
+        let y = c.y
+            + if hy > 0.0 {
+                rng.random_range(-hy..=hy)
+            } else {
+                0.0
+            };
+        let mut z = bin.rim_z() + r + config.spawn_gap_m;
+        for (p, pr) in &placed {
+            let dxy = ((p.x - x).powi(2) + (p.y - y).powi(2)).sqrt();
+            if dxy < r + pr + config.spawn_gap_m {
+                z = z.max(p.z + pr + r + config.spawn_gap_m);
+            }
+        }
+        let pos = Vector3::new(x, y, z);
+        placed.push((pos, r));
+        let rot = random_rotation(rng);
+        let body = RigidBodyBuilder::dynamic()
+            .pose(pose_to_glam(&Isometry3::from_parts(
+                Translation3::from(pos),
+                rot,
+            )))
+            .ccd_enabled(true)
+            .build();
+        let handle = world.insert_body(body);
+        let collider = ColliderBuilder::new(shape)
+            .friction(config.friction)
+            .restitution(config.restitution)
+            .density(config.density)
+            .build();
+        world.insert_collider(collider, Some(handle));
+        handles.push(handle);
+    }
+
+    let max_steps = (config.max_time_s / config.dt_s).ceil() as usize;
+    let mut steps = 0;
+    let mut at_rest = handles.is_empty();
+    while steps < max_steps && !at_rest {
+        world.step();
+        steps += 1;
+        if steps % 10 == 0 {
+            at_rest = handles.iter().all(|h| {
+                world.bodies.get(*h).is_none_or(|b| {
+                    b.is_sleeping()
+                        || (b.linvel().length() < config.rest_linear_speed
+                            && b.angvel().length() < config.rest_angular_speed)
+                })
+            });
+        }
+    }
+
+    let mut out = Vec::new();
+    for (spec, h) in objects.iter().zip(&handles) {
+        let Some(body) = world.bodies.get(*h) else {
+            continue;
+        };
+        let pose = pose_from_glam(body.position());
+        if !pose.translation.vector.iter().all(|v| v.is_finite()) {
+            continue;
+        }
+        let p = pose.translation.vector;
+        let inside = (p.x - c.x).abs() <= 0.5 * lx
+            && (p.y - c.y).abs() <= 0.5 * ly
+            && p.z >= c.z - 0.01
+            && p.z <= bin.rim_z() + 0.05;
+        if inside {
+            out.push(SceneObject {
+                spec: spec.clone(),
+                workspace_from_object: pose,
+            });
+        }
+    }
+    let report = SettleReport {
+        simulated_s: steps as f32 * config.dt_s,
+        at_rest,
+        dropped: objects.len(),
+        removed: objects.len() - out.len(),
+    };
+    Ok((
+        SceneDescription {
+            bin: *bin,
+            objects: out,
+        },
+        report,
+    ))
+}
+
+/// A uniformly distributed random rotation (Shoemake's method).
+pub fn random_rotation(rng: &mut impl Rng) -> UnitQuaternion<f32> {
+    let u1: f32 = rng.random();
+    let u2: f32 = rng.random_range(0.0..std::f32::consts::TAU);
+    let u3: f32 = rng.random_range(0.0..std::f32::consts::TAU);
+    let a = (1.0 - u1).sqrt();
+    let b = u1.sqrt();
+    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        a * u2.sin(),
+        a * u2.cos(),
+        b * u3.sin(),
+        b * u3.cos(),
+    ))
+}
