@@ -171,7 +171,9 @@ impl ReplaySource {
 pub fn fit_workspace_to_plane(depth: &DepthImage, intrinsics: &CameraIntrinsics, cfg: &PipelineConfig) -> Result<CameraModel> {
     let plane = psgrasp_fusion::fit_support_plane(depth, intrinsics, &psgrasp_fusion::PlaneFitConfig::default(), 0)
         .context("fitting the support plane to place the workspace")?;
-    Ok(psgrasp_fusion::workspace_camera_from_plane(&plane, intrinsics, &cfg.workspace))
+    // The plane (bin floor or table) goes where the configured bin floor is.
+    let placement = psgrasp_fusion::PlacementConfig { plane_height_m: cfg.bin.floor_center.z };
+    Ok(psgrasp_fusion::workspace_camera_from_plane(&plane, intrinsics, &cfg.workspace, &placement)?)
 }
 
 impl DepthSource for ReplaySource {

@@ -283,12 +283,8 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
                     configs.sort_by(|a, b| b.quality.total_cmp(&a.quality));
                     configs.truncate(MAX_GRASPS_PER_FRAME);
                     out.stamp(Stamp::InferenceEnd);
-                    grasps_pub.send_with::<()>(out, configs.len(), |buf| {
-                        for (dst, c) in buf.iter_mut().zip(&configs) {
-                            *dst = GraspRecord::from(c);
-                        }
-                        Ok(())
-                    })??;
+                    let records: Vec<GraspRecord> = configs.iter().map(GraspRecord::from).collect();
+                    grasps_pub.send_slice(out, &records)?;
                     ctx.stats.frames_out += 1;
                 }
                 Err((status, msg)) => {
@@ -329,13 +325,18 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
     let mut tracker = FrameTracker::new(ctx.workers as u64, ctx.worker as u64, cfg.pipeline.loss_timeout_ms * 1_000_000);
     let mut grids: BTreeMap<u64, (FrameHeader, Vec<f32>)> = BTreeMap::new();
     // Worker 0 answers "next pick" requests from the picks of all workers.
-    let server = if ctx.worker == 0 { Some(NextPickServer::new(&ctx)?) } else { None };
+    let (mut server, server_inputs) = match ctx.worker {
+        0 => {
+            let (server, inputs) = NextPickServer::new(&ctx)?;
+            (Some(server), Some(inputs))
+        }
+        _ => (None, None),
+    };
     let mut listeners = vec![grasps_sub.listener(), announce_sub.listener(), grid_sub.listener()];
-    if let Some(s) = &server {
-        listeners.push(s.listener());
-        listeners.push(s.picks.listener());
+    if let Some((listener, picks)) = &server_inputs {
+        listeners.push(listener);
+        listeners.push(picks.listener());
     }
-    let mut server = server;
     let mut last_stats = Instant::now();
     tracing::info!("grasp-selection[{}] ready", ctx.worker);
     let exit = run_event_loop(&listeners, Duration::from_millis(20), || {
@@ -430,8 +431,8 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
             picks_pub.send_header(rec)?;
             ctx.stats.errors += 1;
         }
-        if let Some(s) = server.as_mut() {
-            s.serve()?;
+        if let (Some(s), Some((_, picks))) = (server.as_mut(), server_inputs.as_ref()) {
+            s.serve(picks)?;
         }
         ctx.stats.dropped = picks_pub.dropped();
         if stats_due(&mut last_stats, cfg.pipeline.stats_interval_ms) {
@@ -445,14 +446,16 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
 /// Serves `next-pick` requests from the latest successful pick list.
 struct NextPickServer {
     server: iceoryx2::port::server::Server<ipc::Service, NextPickRequest, (), NextPickResponse, ()>,
-    listener: iceoryx2::port::listener::Listener<ipc::Service>,
-    picks: psgrasp_ipc::FrameSubscriber<PickRecord>,
     latest: Option<(u64, Vec<PickRecord>)>,
     cursor: usize,
 }
 
 impl NextPickServer {
-    fn new(ctx: &StageContext) -> Result<Self> {
+    /// The server plus what wakes it: the request event listener and the picks subscriber.
+    #[allow(clippy::type_complexity)]
+    fn new(
+        ctx: &StageContext,
+    ) -> Result<(Self, (iceoryx2::port::listener::Listener<ipc::Service>, psgrasp_ipc::FrameSubscriber<PickRecord>))> {
         let names = &ctx.node.names;
         let name = ServiceName::new(&names.next_pick()).map_err(|e| anyhow::anyhow!("{e:?}"))?;
         let service = ctx
@@ -473,15 +476,11 @@ impl NextPickServer {
             .map_err(|e| anyhow::anyhow!("next-pick event: {e:?}"))?;
         let listener = event.listener_builder().create().map_err(|e| anyhow::anyhow!("next-pick listener: {e:?}"))?;
         let picks = ctx.node.subscriber::<PickRecord>(&names.picks())?;
-        Ok(Self { server, listener, picks, latest: None, cursor: 0 })
+        Ok((Self { server, latest: None, cursor: 0 }, (listener, picks)))
     }
 
-    fn listener(&self) -> &iceoryx2::port::listener::Listener<ipc::Service> {
-        &self.listener
-    }
-
-    fn serve(&mut self) -> Result<()> {
-        while let Some(s) = self.picks.receive()? {
+    fn serve(&mut self, picks: &psgrasp_ipc::FrameSubscriber<PickRecord>) -> Result<()> {
+        while let Some(s) = picks.receive()? {
             let h = s.user_header();
             if h.is_ok() && self.latest.as_ref().is_none_or(|(id, _)| h.frame_id > *id) {
                 self.latest = Some((h.frame_id, s.payload().to_vec()));

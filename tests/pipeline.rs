@@ -1,5 +1,6 @@
 //! Multi-process tests: the four real stage binaries over real iceoryx2 shared memory.
 //! Each test uses its own pipeline name, so tests run in parallel without interfering.
+use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use psgrasp::client::PipelineMonitor;
 use psgrasp::launcher::Supervisor;
@@ -28,8 +29,8 @@ fn nodes_of(pipeline: &str) -> usize {
     let mut n = 0;
     Node::<ipc::Service>::list(Config::global_config(), |state| {
         let name = match &state {
-            NodeState::Alive(v) => v.details().as_ref().map(|d| d.name().to_string()),
-            NodeState::Dead(v) => v.details().as_ref().map(|d| d.name().to_string()),
+            NodeState::Alive(v) => v.details().as_ref().map(|d| d.name().as_str().to_string()),
+            NodeState::Dead(v) => v.details().as_ref().map(|d| d.name().as_str().to_string()),
             _ => None,
         };
         if name.is_some_and(|s| s.starts_with(pipeline)) {
