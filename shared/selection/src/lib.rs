@@ -1,1 +1,539 @@
-//! Ranking and checking grasp configurations into executable picks
+//! Grasp selection: grasp configurations → checked, ranked picks.
+//!
+//! Follows the paper's execution protocol. Configurations are visited by antipodal quality
+//! (descending); within one, the first [`SelectionConfig::approaches_per_configuration`] approaches
+//! by collision score (descending, [`GraspConfiguration::approaches_by_score`]) are tried in turn, and
+//! the first approach that passes every check becomes that configuration's pick (one pick per contact
+//! point). Checks, in order, each counted in [`RejectionCounts`] when it fails:
+//!
+//! per configuration — finite and well-formed ([`RejectionReason::InvalidConfiguration`]), quality
+//! ([`RejectionReason::Quality`]), width within the gripper's opening ([`RejectionReason::Width`]),
+//! both contacts inside the bin ([`RejectionReason::ContactOutsideBin`]: grasping a wall or the rim);
+//!
+//! per approach — collision score ([`RejectionReason::CollisionScore`]), tilt from straight down
+//! ([`RejectionReason::Tilt`], the reachability cone), gripper at the grasp pose against the bin walls
+//! and floor ([`RejectionReason::BinCollision`], oriented box–box test) and against the observed
+//! scene ([`RejectionReason::SceneCollision`], the occupancy checker of `psgrasp-inference`), the
+//! pre-grasp pose backed off along −approach ([`RejectionReason::PregraspCollision`]) and poses
+//! between the two ([`RejectionReason::ApproachPathCollision`]).
+//!
+//! The gripper is checked open at `min(width + opening_clearance_m, max opening)`: the opening the
+//! robot should command ([`SelectedGrasp::opening_m`]). Picks are ordered by quality, then collision
+//! score, and cut to [`SelectionConfig::top_k`].
+#![warn(missing_docs)]
+
+pub mod overlap;
+
+pub use overlap::boxes_overlap;
+
+use nalgebra::{Isometry3, Point3, Translation3, Vector3};
+use psgrasp_fusion::NormalGridView;
+use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel, OrientedBox, N_APPROACHES};
+use psgrasp_inference::{validate_gripper, InferenceError, OccupancyConfig, OccupancyGrid};
+use serde::{Deserialize, Serialize};
+
+/// Errors that prevent selection from running at all (bad configurations of grasps are counted as
+/// rejections instead).
+#[derive(Debug, thiserror::Error)]
+pub enum SelectionError {
+    /// A setting is out of its valid range.
+    #[error("invalid selection setting `{field}`: {reason}")]
+    InvalidConfig {
+        /// Name of the field.
+        field: &'static str,
+        /// What the valid range is.
+        reason: &'static str,
+    },
+    /// The bin model is unusable (non-positive or non-finite sizes).
+    #[error("invalid bin model: {0}")]
+    InvalidBin(&'static str),
+    /// The normal grid or the gripper model is invalid, or the occupancy could not be built.
+    #[error(transparent)]
+    Scene(#[from] InferenceError),
+}
+
+/// Selection settings; every threshold has a default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SelectionConfig {
+    /// Most picks returned.
+    pub top_k: usize,
+    /// Approaches tried per configuration, best collision score first (the paper: 8 of 18).
+    pub approaches_per_configuration: usize,
+    /// Configurations with a lower antipodal quality are rejected.
+    pub min_quality: f32,
+    /// Approaches with a lower collision score are rejected.
+    pub min_collision_score: f32,
+    /// Largest angle between the approach and straight down (the reachability cone), degrees.
+    pub max_approach_tilt_deg: f32,
+    /// Distance the pre-grasp pose is backed off along −approach, metres.
+    pub pregrasp_distance_m: f32,
+    /// Poses checked between the pre-grasp and the grasp pose (evenly spaced, ends excluded).
+    pub approach_path_samples: usize,
+    /// Opening checked and commanded: width plus this clearance (capped at the maximum opening).
+    pub opening_clearance_m: f32,
+    /// Gripper boxes are grown by this margin against the observed scene, metres.
+    pub collision_margin_m: f32,
+    /// Gripper boxes are grown by this margin against the bin walls and floor, metres.
+    pub bin_margin_m: f32,
+    /// Contacts may lie at most this far outside the bin's inner volume, metres.
+    pub bin_contact_tolerance_m: f32,
+    /// Check the gripper against the bin walls and floor.
+    pub check_bin_collision: bool,
+    /// Check the gripper against the observed scene (occupied voxels of the grid).
+    pub check_scene_collision: bool,
+    /// How the grid becomes occupied voxels for the scene check.
+    pub occupancy: OccupancyConfig,
+}
+
+impl Default for SelectionConfig {
+    fn default() -> Self {
+        Self {
+            top_k: 10,
+            approaches_per_configuration: 8,
+            min_quality: 0.5,
+            min_collision_score: 0.5,
+            max_approach_tilt_deg: 60.0,
+            pregrasp_distance_m: 0.08,
+            approach_path_samples: 2,
+            opening_clearance_m: 0.02,
+            collision_margin_m: 0.004,
+            bin_margin_m: 0.003,
+            bin_contact_tolerance_m: 0.005,
+            check_bin_collision: true,
+            check_scene_collision: true,
+            occupancy: OccupancyConfig::default(),
+        }
+    }
+}
+
+fn check(ok: bool, field: &'static str, reason: &'static str) -> Result<(), SelectionError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(SelectionError::InvalidConfig { field, reason })
+    }
+}
+
+impl SelectionConfig {
+    /// Checks every field's range.
+    pub fn validate(&self) -> Result<(), SelectionError> {
+        let c = self;
+        let metric = |v: f32| v.is_finite() && (0.0..1.0).contains(&v);
+        check(c.top_k >= 1, "top_k", "must be at least 1")?;
+        check(
+            (1..=N_APPROACHES).contains(&c.approaches_per_configuration),
+            "approaches_per_configuration",
+            "must lie in 1..=18",
+        )?;
+        check(
+            (0.0..=1.0).contains(&c.min_quality),
+            "min_quality",
+            "must lie in [0, 1]",
+        )?;
+        check(
+            (0.0..=1.0).contains(&c.min_collision_score),
+            "min_collision_score",
+            "must lie in [0, 1]",
+        )?;
+        check(
+            c.max_approach_tilt_deg > 0.0 && c.max_approach_tilt_deg <= 180.0,
+            "max_approach_tilt_deg",
+            "must lie in (0, 180]",
+        )?;
+        check(
+            metric(c.pregrasp_distance_m),
+            "pregrasp_distance_m",
+            "must lie in [0, 1) m",
+        )?;
+        check(
+            c.approach_path_samples <= 100,
+            "approach_path_samples",
+            "must be at most 100",
+        )?;
+        check(
+            metric(c.opening_clearance_m),
+            "opening_clearance_m",
+            "must lie in [0, 1) m",
+        )?;
+        check(
+            metric(c.collision_margin_m),
+            "collision_margin_m",
+            "must lie in [0, 1) m",
+        )?;
+        check(
+            metric(c.bin_margin_m),
+            "bin_margin_m",
+            "must lie in [0, 1) m",
+        )?;
+        check(
+            metric(c.bin_contact_tolerance_m),
+            "bin_contact_tolerance_m",
+            "must lie in [0, 1) m",
+        )?;
+        c.occupancy.validate()?;
+        Ok(())
+    }
+}
+
+/// Why a configuration or one of its approaches was not picked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RejectionReason {
+    /// Non-finite values, a non-unit baseline, a negative width or scores outside [0, 1].
+    InvalidConfiguration,
+    /// Antipodal quality below [`SelectionConfig::min_quality`].
+    Quality,
+    /// Width larger than the gripper's maximum opening.
+    Width,
+    /// A contact lies outside the bin's inner volume (the grasp would hold a wall or the rim).
+    ContactOutsideBin,
+    /// Collision score below [`SelectionConfig::min_collision_score`].
+    CollisionScore,
+    /// Approach tilted more than [`SelectionConfig::max_approach_tilt_deg`] from straight down.
+    Tilt,
+    /// Gripper at the grasp pose overlaps the bin walls or floor.
+    BinCollision,
+    /// Gripper at the grasp pose overlaps occupied voxels of the observed scene.
+    SceneCollision,
+    /// Gripper at the pre-grasp pose overlaps the bin or the observed scene.
+    PregraspCollision,
+    /// Gripper between the pre-grasp and the grasp pose overlaps the bin or the observed scene.
+    ApproachPathCollision,
+}
+
+/// How many times each check failed. Per-configuration reasons count configurations; per-approach
+/// reasons count approaches (a configuration contributes up to
+/// [`SelectionConfig::approaches_per_configuration`] of them).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RejectionCounts {
+    /// See [`RejectionReason::InvalidConfiguration`].
+    pub invalid_configuration: usize,
+    /// See [`RejectionReason::Quality`].
+    pub quality: usize,
+    /// See [`RejectionReason::Width`].
+    pub width: usize,
+    /// See [`RejectionReason::ContactOutsideBin`].
+    pub contact_outside_bin: usize,
+    /// See [`RejectionReason::CollisionScore`].
+    pub collision_score: usize,
+    /// See [`RejectionReason::Tilt`].
+    pub tilt: usize,
+    /// See [`RejectionReason::BinCollision`].
+    pub bin_collision: usize,
+    /// See [`RejectionReason::SceneCollision`].
+    pub scene_collision: usize,
+    /// See [`RejectionReason::PregraspCollision`].
+    pub pregrasp_collision: usize,
+    /// See [`RejectionReason::ApproachPathCollision`].
+    pub approach_path_collision: usize,
+    /// Configurations with no approach left to try (all examined approaches rejected).
+    pub no_valid_approach: usize,
+    /// Configurations never examined because `top_k` better picks were already found.
+    pub not_examined: usize,
+}
+
+impl RejectionCounts {
+    /// Counts one rejection.
+    pub fn add(&mut self, reason: RejectionReason) {
+        *self.slot(reason) += 1;
+    }
+
+    /// The count of one reason.
+    pub fn get(&self, reason: RejectionReason) -> usize {
+        let mut copy = *self;
+        *copy.slot(reason)
+    }
+
+    fn slot(&mut self, reason: RejectionReason) -> &mut usize {
+        match reason {
+            RejectionReason::InvalidConfiguration => &mut self.invalid_configuration,
+            RejectionReason::Quality => &mut self.quality,
+            RejectionReason::Width => &mut self.width,
+            RejectionReason::ContactOutsideBin => &mut self.contact_outside_bin,
+            RejectionReason::CollisionScore => &mut self.collision_score,
+            RejectionReason::Tilt => &mut self.tilt,
+            RejectionReason::BinCollision => &mut self.bin_collision,
+            RejectionReason::SceneCollision => &mut self.scene_collision,
+            RejectionReason::PregraspCollision => &mut self.pregrasp_collision,
+            RejectionReason::ApproachPathCollision => &mut self.approach_path_collision,
+        }
+    }
+}
+
+/// An executable grasp.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SelectedGrasp {
+    /// Gripper pose at the grasp (x = baseline, z = approach, origin = TCP between the contacts).
+    pub workspace_from_gripper: Isometry3<f32>,
+    /// Gripper pose before the final approach: the grasp pose backed off along −approach.
+    pub pregrasp: Isometry3<f32>,
+    /// Contact-to-contact width, metres.
+    pub width: f32,
+    /// Opening to command before closing: `min(width + clearance, max opening)`, metres.
+    pub opening_m: f32,
+    /// Antipodal quality of the configuration.
+    pub quality: f32,
+    /// Collision score of the chosen approach.
+    pub collision_score: f32,
+    /// Index of the configuration in the input slice.
+    pub configuration_index: usize,
+    /// Index of the chosen approach (0..18) within the configuration.
+    pub approach_index: usize,
+}
+
+/// The result of [`select`].
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Selection {
+    /// Picks, best first (quality, then collision score), at most `top_k`.
+    pub picks: Vec<SelectedGrasp>,
+    /// Why the other configurations and approaches were rejected.
+    pub rejected: RejectionCounts,
+}
+
+/// Checks single configurations and approaches against one bin and one observed scene.
+#[derive(Debug, Clone)]
+pub struct GraspChecker<'a> {
+    cfg: &'a SelectionConfig,
+    gripper: GripperModel,
+    bin: BinModel,
+    bin_boxes: [OrientedBox; 5],
+    scene: Option<&'a OccupancyGrid>,
+    cos_max_tilt: f32,
+}
+
+fn validate_bin(bin: &BinModel) -> Result<(), SelectionError> {
+    let sizes_ok = bin.inner_size_m.iter().all(|v| v.is_finite() && *v > 0.0);
+    let wall_ok = bin.wall_thickness_m.is_finite() && bin.wall_thickness_m > 0.0;
+    let centre_ok = bin.floor_center.coords.iter().all(|v| v.is_finite());
+    if sizes_ok && wall_ok && centre_ok {
+        Ok(())
+    } else {
+        Err(SelectionError::InvalidBin(
+            "sizes and wall thickness must be positive, the floor centre finite",
+        ))
+    }
+}
+
+impl<'a> GraspChecker<'a> {
+    /// A checker for `gripper` in `bin`; `scene` is the observed occupancy (`None` skips the scene
+    /// test, as does [`SelectionConfig::check_scene_collision`] = false).
+    pub fn new(
+        cfg: &'a SelectionConfig,
+        gripper: GripperModel,
+        bin: BinModel,
+        scene: Option<&'a OccupancyGrid>,
+    ) -> Result<Self, SelectionError> {
+        cfg.validate()?;
+        validate_gripper(&gripper)?;
+        validate_bin(&bin)?;
+        Ok(Self {
+            cfg,
+            gripper,
+            bin,
+            bin_boxes: bin.boxes(),
+            scene: scene.filter(|_| cfg.check_scene_collision),
+            cos_max_tilt: cfg.max_approach_tilt_deg.to_radians().cos(),
+        })
+    }
+
+    /// The per-configuration checks: validity, quality, width, contacts inside the bin.
+    pub fn check_configuration(&self, c: &GraspConfiguration) -> Result<(), RejectionReason> {
+        let finite = c
+            .contact
+            .coords
+            .iter()
+            .chain(c.baseline.iter())
+            .all(|v| v.is_finite())
+            && c.width.is_finite()
+            && c.quality.is_finite();
+        let scores_ok = c
+            .collision_scores
+            .iter()
+            .all(|s| s.is_finite() && (0.0..=1.0).contains(s));
+        if !finite || !scores_ok || (c.baseline.norm() - 1.0).abs() > 1e-3 || c.width < 0.0 {
+            return Err(RejectionReason::InvalidConfiguration);
+        }
+        if c.quality < self.cfg.min_quality {
+            return Err(RejectionReason::Quality);
+        }
+        if c.width > self.gripper.max_opening_m {
+            return Err(RejectionReason::Width);
+        }
+        let second = c.contact + c.baseline * c.width;
+        if !self.inside_bin(&c.contact) || !self.inside_bin(&second) {
+            return Err(RejectionReason::ContactOutsideBin);
+        }
+        Ok(())
+    }
+
+    fn inside_bin(&self, p: &Point3<f32>) -> bool {
+        let d = p - self.bin.floor_center;
+        let tol = self.cfg.bin_contact_tolerance_m;
+        let [lx, ly, lz] = self.bin.inner_size_m;
+        d.x.abs() <= 0.5 * lx + tol && d.y.abs() <= 0.5 * ly + tol && d.z >= -tol && d.z <= lz + tol
+    }
+
+    /// True if the gripper at `pose`, open at `opening`, hits the bin or the observed scene.
+    fn gripper_collides(&self, pose: &Isometry3<f32>, opening: f32) -> Option<RejectionReason> {
+        let boxes = self.gripper.boxes(pose, opening);
+        if self.cfg.check_bin_collision
+            && boxes.iter().any(|g| {
+                self.bin_boxes
+                    .iter()
+                    .any(|w| boxes_overlap(g, w, self.cfg.bin_margin_m))
+            })
+        {
+            return Some(RejectionReason::BinCollision);
+        }
+        if let Some(scene) = self.scene {
+            // Fingers first: they are the likelier to collide.
+            if [1, 2, 0]
+                .iter()
+                .any(|&i| scene.box_collides(&boxes[i], self.cfg.collision_margin_m))
+            {
+                return Some(RejectionReason::SceneCollision);
+            }
+        }
+        None
+    }
+
+    /// The per-approach checks for approach `approach_index` of `c` (the configuration checks are
+    /// not repeated); on success the pick, tagged with `configuration_index`.
+    pub fn check_approach(
+        &self,
+        c: &GraspConfiguration,
+        configuration_index: usize,
+        approach_index: usize,
+    ) -> Result<SelectedGrasp, RejectionReason> {
+        if approach_index >= N_APPROACHES {
+            return Err(RejectionReason::InvalidConfiguration);
+        }
+        let score = c.collision_scores[approach_index];
+        if score < self.cfg.min_collision_score {
+            return Err(RejectionReason::CollisionScore);
+        }
+        let grasp = c.grasp(approach_index);
+        // Tilt from straight down: cos = a · (−z).
+        if -grasp.approach.z < self.cos_max_tilt - 1e-6 {
+            return Err(RejectionReason::Tilt);
+        }
+        let pose = grasp.workspace_from_gripper();
+        let opening = (c.width + self.cfg.opening_clearance_m).min(self.gripper.max_opening_m);
+        if let Some(reason) = self.gripper_collides(&pose, opening) {
+            return Err(reason);
+        }
+        let approach: Vector3<f32> = pose.rotation * Vector3::z();
+        let backed_off = |distance: f32| {
+            Isometry3::from_parts(
+                Translation3::from(pose.translation.vector - approach * distance),
+                pose.rotation,
+            )
+        };
+        let pregrasp = backed_off(self.cfg.pregrasp_distance_m);
+        if self.gripper_collides(&pregrasp, opening).is_some() {
+            return Err(RejectionReason::PregraspCollision);
+        }
+        let n = self.cfg.approach_path_samples;
+        for s in 1..=n {
+            let distance = self.cfg.pregrasp_distance_m * s as f32 / (n + 1) as f32;
+            if self
+                .gripper_collides(&backed_off(distance), opening)
+                .is_some()
+            {
+                return Err(RejectionReason::ApproachPathCollision);
+            }
+        }
+        Ok(SelectedGrasp {
+            workspace_from_gripper: pose,
+            pregrasp,
+            width: c.width,
+            opening_m: opening,
+            quality: c.quality,
+            collision_score: score,
+            configuration_index,
+            approach_index,
+        })
+    }
+}
+
+/// Selects up to `top_k` executable grasps from `configs` (see the crate docs for the order and
+/// the checks). The observed scene is the occupancy of `grid`.
+pub fn select(
+    configs: &[GraspConfiguration],
+    grid: &NormalGridView<'_>,
+    bin: &BinModel,
+    gripper: &GripperModel,
+    cfg: &SelectionConfig,
+) -> Result<Selection, SelectionError> {
+    cfg.validate()?;
+    let occupancy = if cfg.check_scene_collision {
+        Some(OccupancyGrid::from_normal_grid(grid, &cfg.occupancy)?)
+    } else {
+        None
+    };
+    select_with_occupancy(configs, occupancy.as_ref(), bin, gripper, cfg)
+}
+
+/// [`select`] with a prebuilt occupancy grid (`None`: no scene check), e.g. shared with the
+/// inference backend.
+pub fn select_with_occupancy(
+    configs: &[GraspConfiguration],
+    occupancy: Option<&OccupancyGrid>,
+    bin: &BinModel,
+    gripper: &GripperModel,
+    cfg: &SelectionConfig,
+) -> Result<Selection, SelectionError> {
+    let checker = GraspChecker::new(cfg, *gripper, *bin, occupancy)?;
+    let mut order: Vec<usize> = (0..configs.len()).collect();
+    // Quality descending; NaN qualities sort last (and are rejected as invalid); ties by index.
+    let key = |i: usize| {
+        if configs[i].quality.is_nan() {
+            f32::NEG_INFINITY
+        } else {
+            configs[i].quality
+        }
+    };
+    order.sort_by(|&a, &b| key(b).total_cmp(&key(a)).then(a.cmp(&b)));
+
+    let mut rejected = RejectionCounts::default();
+    let mut picks: Vec<SelectedGrasp> = Vec::new();
+    for (rank, &ci) in order.iter().enumerate() {
+        let c = &configs[ci];
+        // Enough picks, and this and every later configuration rank below all of them.
+        if picks.len() >= cfg.top_k && picks.last().is_some_and(|p| key(ci) < p.quality) {
+            rejected.not_examined += order.len() - rank;
+            break;
+        }
+        if let Err(reason) = checker.check_configuration(c) {
+            rejected.add(reason);
+            continue;
+        }
+        let mut picked = false;
+        for &ai in c
+            .approaches_by_score()
+            .iter()
+            .take(cfg.approaches_per_configuration)
+        {
+            match checker.check_approach(c, ci, ai) {
+                Ok(pick) => {
+                    picks.push(pick);
+                    picked = true;
+                    break;
+                }
+                Err(reason) => rejected.add(reason),
+            }
+        }
+        if !picked {
+            rejected.no_valid_approach += 1;
+        }
+    }
+    picks.sort_by(|a, b| {
+        b.quality
+            .total_cmp(&a.quality)
+            .then(b.collision_score.total_cmp(&a.collision_score))
+            .then(a.configuration_index.cmp(&b.configuration_index))
+    });
+    picks.truncate(cfg.top_k);
+    Ok(Selection { picks, rejected })
+}

@@ -1,0 +1,89 @@
+//! The analytic backend's configurations through selection, checked against the exact scene.
+use nalgebra::{Point2, Point3, Vector3};
+use psgrasp_geometry::{BinModel, GripperModel, Workspace};
+use psgrasp_inference::synthetic::{Primitive, SyntheticScene};
+use psgrasp_inference::{AnalyticBackend, AnalyticConfig, ContactRegion, InferenceBackend};
+use psgrasp_selection::{select, SelectionConfig};
+
+#[test]
+fn picks_from_the_analytic_backend_hold_an_object_and_clear_the_scene() {
+    let bin = BinModel::default();
+    let floor = bin.floor_center.z;
+    let mut scene = SyntheticScene::floor(floor)
+        .with(Primitive::Box {
+            center_xy: Point2::new(0.2, 0.2),
+            size_m: Vector3::new(0.045, 0.07, 0.06),
+            yaw_rad: 0.4,
+        })
+        .with(Primitive::Box {
+            center_xy: Point2::new(0.38, 0.3),
+            size_m: Vector3::new(0.05, 0.05, 0.09),
+            yaw_rad: 1.1,
+        })
+        .with(Primitive::Cylinder {
+            center_xy: Point2::new(0.27, 0.36),
+            radius_m: 0.025,
+            height_m: 0.08,
+        })
+        .with(Primitive::Box {
+            center_xy: Point2::new(0.3, 0.2),
+            size_m: Vector3::new(0.035, 0.05, 0.04),
+            yaw_rad: 0.0,
+        });
+    // The two long walls inside the grid.
+    for y in [0.083, 0.493] {
+        scene.objects.push(Primitive::Box {
+            center_xy: Point2::new(0.288, y),
+            size_m: Vector3::new(0.62, 0.01, 0.28),
+            yaw_rad: 0.0,
+        });
+    }
+    let grid = scene.normal_grid(Workspace::default(), 0.027);
+    let gripper = GripperModel::default();
+    let cfg = AnalyticConfig {
+        contact_region: Some(ContactRegion::inside_bin(&bin, 0.005)),
+        ..AnalyticConfig::default()
+    };
+    let mut backend = AnalyticBackend::new(cfg, gripper).unwrap();
+    let configs = backend.infer(&grid.view(), 17).unwrap();
+    assert!(!configs.is_empty());
+
+    let sel = select(
+        &configs,
+        &grid.view(),
+        &bin,
+        &gripper,
+        &SelectionConfig::default(),
+    )
+    .unwrap();
+    assert_eq!(sel.picks.len(), 10, "{:?}", sel.rejected);
+    let sd = |p: &Point3<f32>| {
+        scene.signed_distance(&Vector3::new(p.x as f64, p.y as f64, p.z as f64)) as f32
+    };
+    for pick in &sel.picks {
+        // The TCP lies inside an object: the fingers close on something.
+        let tcp = Point3::from(pick.workspace_from_gripper.translation.vector);
+        assert!(sd(&tcp) < 0.0, "TCP {tcp:?} is not inside an object");
+        // No point of the gripper (grasp and pre-grasp) is deeper than 2 mm inside the exact scene.
+        for pose in [pick.workspace_from_gripper, pick.pregrasp] {
+            for b in gripper.boxes(&pose, pick.opening_m) {
+                for i in 0..5 * 5 * 5 {
+                    let f = |v: usize| v as f32 / 2.0 - 1.0;
+                    let local = Point3::new(
+                        f(i % 5) * b.half_extents.x,
+                        f((i / 5) % 5) * b.half_extents.y,
+                        f(i / 25) * b.half_extents.z,
+                    );
+                    let p = b.parent_from_box * local;
+                    assert!(
+                        sd(&p) > -0.002,
+                        "gripper point {p:?} is {} m inside the scene",
+                        -sd(&p)
+                    );
+                }
+            }
+        }
+        let down = -(pick.workspace_from_gripper.rotation * Vector3::z()).z;
+        assert!(down >= 60f32.to_radians().cos() - 1e-5);
+    }
+}

@@ -1,0 +1,364 @@
+//! Selection on hand-made configurations in the default bin, with known answers.
+use nalgebra::{Point2, Point3, Vector3};
+use psgrasp_fusion::NormalGrid;
+use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel, Workspace, N_APPROACHES};
+use psgrasp_inference::synthetic::{Primitive, SyntheticScene};
+use psgrasp_selection::{select, GraspChecker, RejectionReason, SelectionConfig, SelectionError};
+
+const TRUNC: f32 = 0.027;
+
+fn bin() -> BinModel {
+    BinModel::default()
+}
+
+fn floor_z() -> f32 {
+    bin().floor_center.z
+}
+
+/// The observed scene: the bin floor plus `objects`.
+fn scene(objects: &[Primitive]) -> NormalGrid {
+    let mut s = SyntheticScene::floor(floor_z());
+    s.objects.extend_from_slice(objects);
+    s.normal_grid(Workspace::default(), TRUNC)
+}
+
+/// A configuration at `contact` with baseline +x, width 40 mm, and collision score `score` for the
+/// approaches in `free`, 0 for the others.
+fn config(contact: [f32; 3], quality: f32, free: &[usize], score: f32) -> GraspConfiguration {
+    let mut collision_scores = [0.0; N_APPROACHES];
+    for &i in free {
+        collision_scores[i] = score;
+    }
+    GraspConfiguration {
+        contact: Point3::from(contact),
+        baseline: Vector3::x(),
+        collision_scores,
+        width: 0.04,
+        quality,
+        kappa: 0.0,
+    }
+}
+
+/// Approaches 8 and 9 are the two within 6° of straight down for a horizontal baseline.
+const DOWN: [usize; 2] = [8, 9];
+
+fn run(
+    configs: &[GraspConfiguration],
+    grid: &NormalGrid,
+    cfg: &SelectionConfig,
+) -> psgrasp_selection::Selection {
+    select(configs, &grid.view(), &bin(), &GripperModel::default(), cfg).unwrap()
+}
+
+#[test]
+fn fingers_in_a_bin_wall_are_rejected_for_that_reason() {
+    let grid = scene(&[]);
+    let cfg = SelectionConfig::default();
+    // Baseline along y, first contact 12 mm from the −y wall's inner face (y = 0.088): the fingers
+    // open 60 mm around the TCP at y = 0.12, so the −y finger sits inside the wall.
+    let near_wall = GraspConfiguration {
+        baseline: Vector3::y(),
+        ..config(
+            [0.288, 0.100, 0.06],
+            0.95,
+            &(5..=12).collect::<Vec<_>>(),
+            1.0,
+        )
+    };
+    let sel = run(&[near_wall], &grid, &cfg);
+    assert!(sel.picks.is_empty());
+    assert_eq!(sel.rejected.bin_collision, 8, "{:?}", sel.rejected);
+    assert_eq!(sel.rejected.no_valid_approach, 1);
+    let checker = GraspChecker::new(&cfg, GripperModel::default(), bin(), None).unwrap();
+    assert_eq!(
+        checker.check_approach(&near_wall, 0, 8).unwrap_err(),
+        RejectionReason::BinCollision
+    );
+
+    // The same grasp in the middle of the bin is picked. Approaches are tried by score, ties by
+    // index, so approach 5 (37° tilt) comes first.
+    let centred = GraspConfiguration {
+        contact: Point3::new(0.288, 0.25, 0.06),
+        ..near_wall
+    };
+    let sel = run(&[centred], &grid, &cfg);
+    assert_eq!(sel.picks.len(), 1, "{:?}", sel.rejected);
+    assert_eq!(sel.picks[0].approach_index, 5);
+    assert_eq!(sel.rejected, Default::default());
+}
+
+#[test]
+fn approach_tilted_beyond_the_cone_is_rejected() {
+    let grid = scene(&[]);
+    // Only approach 0 is collision-free: horizontal (−y) for a baseline along +x.
+    let c = config([0.268, 0.2, 0.1], 0.9, &[0], 1.0);
+    assert!(c.approaches()[0].z.abs() < 1e-5);
+    let sel = run(&[c], &grid, &SelectionConfig::default());
+    assert!(sel.picks.is_empty());
+    assert_eq!(sel.rejected.tilt, 1);
+    assert_eq!(
+        sel.rejected.collision_score, 7,
+        "the other 7 of the first 8 approaches score 0"
+    );
+
+    let wide_cone = SelectionConfig {
+        max_approach_tilt_deg: 95.0,
+        ..SelectionConfig::default()
+    };
+    let sel = run(&[c], &grid, &wide_cone);
+    assert_eq!(sel.picks.len(), 1, "{:?}", sel.rejected);
+    let pick = &sel.picks[0];
+    assert_eq!(pick.approach_index, 0);
+    // The pre-grasp is backed off 80 mm against the (horizontal) approach, i.e. along +y.
+    let back = pick.pregrasp.translation.vector - pick.workspace_from_gripper.translation.vector;
+    assert!(
+        (back - Vector3::new(0.0, 0.08, 0.0)).norm() < 1e-5,
+        "{back:?}"
+    );
+    assert!((pick.opening_m - 0.06).abs() < 1e-6);
+}
+
+#[test]
+fn picks_are_ordered_by_quality_then_collision_score() {
+    let grid = scene(&[]);
+    let mut c0 = config([0.15, 0.2, 0.06], 0.6, &DOWN, 0.9);
+    // c0's best-scored approach is horizontal: rejected for tilt, approach 9 (0.9) is taken.
+    c0.collision_scores[0] = 1.0;
+    c0.collision_scores[8] = 0.0;
+    let configs = [
+        c0,
+        config([0.25, 0.2, 0.06], 0.9, &DOWN, 0.8),
+        config([0.35, 0.2, 0.06], 0.9, &DOWN, 0.95),
+        config([0.45, 0.2, 0.06], 0.7, &DOWN, 1.0),
+        config([0.30, 0.35, 0.06], 0.4, &DOWN, 1.0),
+    ];
+    let sel = run(&configs, &grid, &SelectionConfig::default());
+    let order: Vec<usize> = sel.picks.iter().map(|p| p.configuration_index).collect();
+    assert_eq!(order, vec![2, 1, 3, 0]);
+    assert_eq!(sel.picks[3].approach_index, 9);
+    assert_eq!(sel.picks[3].collision_score, 0.9);
+    assert_eq!(
+        sel.picks[0].approach_index, 8,
+        "ties in score go to the lower index"
+    );
+    assert_eq!(sel.rejected.tilt, 1);
+    assert_eq!(sel.rejected.quality, 1);
+    for p in &sel.picks {
+        let c = &configs[p.configuration_index];
+        assert_eq!(p.quality, c.quality);
+        let tcp = c.contact + c.baseline * (0.5 * c.width);
+        assert!((p.workspace_from_gripper.translation.vector - tcp.coords).norm() < 1e-6);
+        assert!((p.workspace_from_gripper.rotation * Vector3::x() - c.baseline).norm() < 1e-5);
+    }
+}
+
+#[test]
+fn top_k_keeps_the_best_and_skips_the_rest() {
+    let grid = scene(&[]);
+    let mut configs = Vec::new();
+    for (n, (x, y)) in [0.12f32, 0.2, 0.28, 0.36, 0.44]
+        .iter()
+        .flat_map(|x| [0.15f32, 0.25, 0.35].map(|y| (*x, y)))
+        .enumerate()
+    {
+        configs.push(config([x, y, 0.06], 0.55 + 0.03 * n as f32, &DOWN, 1.0));
+    }
+    assert_eq!(configs.len(), 15);
+    let sel = run(&configs, &grid, &SelectionConfig::default());
+    let order: Vec<usize> = sel.picks.iter().map(|p| p.configuration_index).collect();
+    assert_eq!(order, (5..15).rev().collect::<Vec<_>>());
+    assert_eq!(sel.rejected.not_examined, 5);
+    let all = run(
+        &configs,
+        &grid,
+        &SelectionConfig {
+            top_k: 20,
+            ..SelectionConfig::default()
+        },
+    );
+    assert_eq!(all.picks.len(), 15, "{:?}", all.rejected);
+}
+
+/// A 40×60×50 mm box in the middle of the bin and a grasp across it, 25 mm above the floor.
+fn box_and_grasp() -> (Primitive, GraspConfiguration) {
+    let b = Primitive::Box {
+        center_xy: Point2::new(0.288, 0.288),
+        size_m: Vector3::new(0.04, 0.06, 0.05),
+        yaw_rad: 0.0,
+    };
+    (
+        b,
+        config([0.268, 0.288, floor_z() + 0.025], 0.95, &DOWN, 1.0),
+    )
+}
+
+/// Marks the voxels with centres in `[lo, hi]` as occupied (−1, no normal): an overhang that a
+/// top-down camera could not see, e.g. a robot part or a lid.
+fn add_obstacle(grid: &mut NormalGrid, lo: [f32; 3], hi: [f32; 3]) {
+    let ws = grid.workspace;
+    let n = ws.voxel_count();
+    for idx in 0..n {
+        let [i, j, k] = ws.unindex(idx);
+        let p = ws.voxel_center(i, j, k);
+        if (0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a]) {
+            grid.tsdf[idx] = -1.0;
+            for a in 0..3 {
+                grid.normals[a * n + idx] = 0.0;
+            }
+        }
+    }
+}
+
+#[test]
+fn pregrasp_collision_with_an_obstacle_above_the_grasp() {
+    let (object, c) = box_and_grasp();
+    let clear = scene(&[object]);
+    let sel = run(&[c], &clear, &SelectionConfig::default());
+    assert_eq!(sel.picks.len(), 1, "{:?}", sel.rejected);
+
+    // 150–170 mm above the TCP: above the palm at the grasp (its top is 131 mm above the TCP), in
+    // the palm's way 80 mm higher at the pre-grasp.
+    let tcp_z = c.contact.z;
+    let mut blocked = clear.clone();
+    add_obstacle(
+        &mut blocked,
+        [0.2, 0.25, tcp_z + 0.15],
+        [0.38, 0.33, tcp_z + 0.17],
+    );
+    let sel = run(&[c], &blocked, &SelectionConfig::default());
+    assert!(sel.picks.is_empty());
+    assert_eq!(sel.rejected.pregrasp_collision, 2, "{:?}", sel.rejected);
+    assert_eq!(sel.rejected.scene_collision, 0);
+    assert_eq!(sel.rejected.collision_score, 6);
+    // Without the scene check the obstacle is invisible.
+    let blind = SelectionConfig {
+        check_scene_collision: false,
+        ..SelectionConfig::default()
+    };
+    assert_eq!(run(&[c], &blocked, &blind).picks.len(), 1);
+}
+
+#[test]
+fn obstacle_between_pregrasp_and_grasp_is_found_on_the_path() {
+    let (object, c) = box_and_grasp();
+    let mut grid = scene(&[object]);
+    let tcp_z = c.contact.z;
+    // A thin plate 152–160 mm above the TCP, with the pre-grasp 300 mm back: neither end pose
+    // touches it, the poses in between do.
+    add_obstacle(
+        &mut grid,
+        [0.2, 0.25, tcp_z + 0.152],
+        [0.38, 0.33, tcp_z + 0.16],
+    );
+    let far = SelectionConfig {
+        pregrasp_distance_m: 0.3,
+        ..SelectionConfig::default()
+    };
+    let sel = run(&[c], &grid, &far);
+    assert!(sel.picks.is_empty());
+    assert_eq!(
+        sel.rejected.approach_path_collision, 2,
+        "{:?}",
+        sel.rejected
+    );
+    let no_path = SelectionConfig {
+        approach_path_samples: 0,
+        ..far
+    };
+    assert_eq!(run(&[c], &grid, &no_path).picks.len(), 1);
+}
+
+#[test]
+fn fingers_in_a_neighbouring_object_are_a_scene_collision() {
+    let (object, c) = box_and_grasp();
+    // The +x finger (opening 60 mm) occupies x ∈ [0.318, 0.339]; a neighbour at x ∈ [0.325, 0.355].
+    let neighbour = Primitive::Box {
+        center_xy: Point2::new(0.34, 0.288),
+        size_m: Vector3::new(0.03, 0.06, 0.05),
+        yaw_rad: 0.0,
+    };
+    let grid = scene(&[object, neighbour]);
+    let sel = run(&[c], &grid, &SelectionConfig::default());
+    assert!(sel.picks.is_empty());
+    assert_eq!(sel.rejected.scene_collision, 2, "{:?}", sel.rejected);
+}
+
+#[test]
+fn configurations_outside_the_bin_or_malformed_are_counted() {
+    let grid = scene(&[]);
+    let mut nan = config([0.2, 0.2, 0.06], 0.9, &DOWN, 1.0);
+    nan.contact.x = f32::NAN;
+    let mut not_unit = config([0.2, 0.2, 0.06], 0.9, &DOWN, 1.0);
+    not_unit.baseline *= 2.0;
+    let mut too_wide = config([0.2, 0.2, 0.06], 0.9, &DOWN, 1.0);
+    too_wide.width = 0.1;
+    // Second contact 6 mm beyond the +y wall's inner face (y = 0.488): grasping the wall.
+    let wall = GraspConfiguration {
+        baseline: Vector3::y(),
+        width: 0.016,
+        ..config([0.3, 0.478, 0.1], 0.9, &DOWN, 1.0)
+    };
+    let mut nan_quality = config([0.3, 0.3, 0.06], 0.9, &DOWN, 1.0);
+    nan_quality.quality = f32::NAN;
+    let sel = run(
+        &[nan, not_unit, too_wide, wall, nan_quality],
+        &grid,
+        &SelectionConfig::default(),
+    );
+    assert!(sel.picks.is_empty());
+    assert_eq!(sel.rejected.invalid_configuration, 3);
+    assert_eq!(sel.rejected.width, 1);
+    assert_eq!(sel.rejected.contact_outside_bin, 1);
+    assert_eq!(sel.rejected.get(RejectionReason::ContactOutsideBin), 1);
+}
+
+#[test]
+fn bad_settings_and_grids_are_errors() {
+    let grid = scene(&[]);
+    let cfg = SelectionConfig {
+        approaches_per_configuration: 19,
+        ..SelectionConfig::default()
+    };
+    assert!(matches!(
+        select(&[], &grid.view(), &bin(), &GripperModel::default(), &cfg),
+        Err(SelectionError::InvalidConfig {
+            field: "approaches_per_configuration",
+            ..
+        })
+    ));
+    let mut bad = grid.clone();
+    bad.tsdf.pop();
+    assert!(matches!(
+        select(
+            &[],
+            &bad.view(),
+            &bin(),
+            &GripperModel::default(),
+            &SelectionConfig::default()
+        ),
+        Err(SelectionError::Scene(_))
+    ));
+    let bad_bin = BinModel {
+        wall_thickness_m: f32::NAN,
+        ..bin()
+    };
+    assert!(matches!(
+        select(
+            &[],
+            &grid.view(),
+            &bad_bin,
+            &GripperModel::default(),
+            &SelectionConfig::default()
+        ),
+        Err(SelectionError::InvalidBin(_))
+    ));
+}
+
+#[test]
+fn config_parses_from_toml_with_defaults() {
+    let cfg: SelectionConfig = toml::from_str("top_k = 3\nmax_approach_tilt_deg = 45.0\n").unwrap();
+    assert_eq!(cfg.top_k, 3);
+    assert_eq!(cfg.approaches_per_configuration, 8);
+    assert_eq!(cfg.pregrasp_distance_m, 0.08);
+    assert!(toml::from_str::<SelectionConfig>("top_kk = 3\n").is_err());
+}
