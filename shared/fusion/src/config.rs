@@ -15,9 +15,30 @@ pub struct FusionConfig {
     /// Cap of the per-voxel integration weight; once reached the running average becomes an
     /// exponential moving average, so the volume can follow a changing scene. Default 64.
     pub max_weight: f32,
-    /// Integrate voxels in free space (in front of the band) as +1 with full weight, so a later
-    /// view can carve away surfaces seen earlier. Default true.
+    /// Integrate voxels in free space (in front of the band) as +1, so a later view can carve
+    /// away surfaces seen earlier. Default true.
     pub carve_free_space: bool,
+    /// Weight of such a free-space observation. A truncated +1 only says "at least one band
+    /// away from this view's surface"; at full weight it would bend the distances another view
+    /// measured near a surface (≈2° of extra normal error at silhouettes in our two-view test).
+    /// Default 0.1.
+    pub free_space_weight: f32,
+    /// Observations behind the surface (negative distance) get a weight falling linearly from 1
+    /// at the surface to `behind_min_weight` at this fraction of the band. Behind a view's
+    /// silhouette the band claims space the object does not fill; another view that sees that
+    /// space as free then wins the average. Default 0.5.
+    pub behind_falloff: f32,
+    /// Smallest weight of an observation behind the surface (see `behind_falloff`). Default 0.05.
+    pub behind_min_weight: f32,
+    /// Interpolate the depth bilinearly between the four pixels around a voxel's projection
+    /// (nearest pixel otherwise, and wherever the four differ by more than `max_depth_jump_m`
+    /// or one is missing). Removes the half-pixel quantisation of the signed distance on
+    /// slanted surfaces, which tilts normals by ~1° and biases the fusion of oblique views.
+    /// Default true.
+    pub bilinear_depth: bool,
+    /// Largest depth difference (metres) between the four interpolated pixels; larger means a
+    /// depth discontinuity, where the nearest pixel is used. Default 0.01 m.
+    pub max_depth_jump_m: f32,
     /// Closest-point iterations per band voxel when extracting normals (0 = normal of the
     /// first-order projection onto the surface). 3 gets normals of curved surfaces within ~1°
     /// across the whole band. Default 3.
@@ -37,6 +58,11 @@ impl Default for FusionConfig {
             max_depth_m: 3.0,
             max_weight: 64.0,
             carve_free_space: true,
+            free_space_weight: 0.1,
+            behind_falloff: 0.5,
+            behind_min_weight: 0.05,
+            bilinear_depth: true,
+            max_depth_jump_m: 0.01,
             normal_iterations: 3,
             min_gradient: 0.1,
         }
@@ -57,6 +83,18 @@ impl FusionConfig {
         }
         if !(self.max_weight.is_finite() && self.max_weight >= 1.0) {
             return Err(FusionError::InvalidConfig("max_weight must be finite and >= 1"));
+        }
+        if !(self.free_space_weight.is_finite() && self.free_space_weight > 0.0 && self.free_space_weight <= 1.0) {
+            return Err(FusionError::InvalidConfig("free_space_weight must be in (0, 1]"));
+        }
+        if !(self.behind_falloff.is_finite() && self.behind_falloff > 0.0) {
+            return Err(FusionError::InvalidConfig("behind_falloff must be finite and > 0"));
+        }
+        if !(self.behind_min_weight.is_finite() && self.behind_min_weight > 0.0 && self.behind_min_weight <= 1.0) {
+            return Err(FusionError::InvalidConfig("behind_min_weight must be in (0, 1]"));
+        }
+        if !(self.max_depth_jump_m.is_finite() && self.max_depth_jump_m >= 0.0) {
+            return Err(FusionError::InvalidConfig("max_depth_jump_m must be finite and >= 0"));
         }
         if self.normal_iterations > 32 {
             return Err(FusionError::InvalidConfig("normal_iterations must be <= 32"));

@@ -1,9 +1,9 @@
 //! Normal extraction: the unit normal of the nearest surface point for every band voxel.
 //!
-//! Method: a smoothed copy of the fused field is not needed; instead we
-//! 1. cache `F` (signed distance in voxels) and its gradient `∇F` per voxel (central differences;
-//!    one-sided next to truncated or unobserved neighbours, whose values are clamped and would
-//!    bias the difference);
+//! Method:
+//! 1. cache `F` (signed distance in voxels) and its gradient `∇F` for the voxels of each column
+//!    between its lowest and highest band voxel (±1) — central differences, one-sided next to
+//!    truncated or unobserved neighbours, whose clamped values would bias the difference;
 //! 2. for a band voxel `x`, step to the zero level set along the gradient (`t = x − F ∇F/|∇F|²`)
 //!    and read the trilinearly interpolated gradient there;
 //! 3. iterate closest-point updates `t ← x ∓ |x − q| n(t)`, where `q` is the projection of `t`
@@ -16,8 +16,28 @@
 use crate::FusionConfig;
 use psgrasp_geometry::Workspace;
 
-/// `[F, ∂F/∂x, ∂F/∂y, ∂F/∂z]` in voxel units.
-pub(crate) type FieldSample = [f32; 4];
+/// Squared step (voxels²) below which the closest-point iteration stops: 0.02 voxel.
+const CONVERGED_SQ: f32 = 0.02 * 0.02;
+
+/// `[F, ∂F/∂x, ∂F/∂y, ∂F/∂z]` in voxel units; F = NaN where never observed.
+type FieldSample = [f32; 4];
+
+/// Reusable buffers of the normal extraction.
+#[derive(Debug, Default)]
+pub(crate) struct NormalScratch {
+    /// Cached field, valid only inside each column's `ranges` entry.
+    field: Vec<FieldSample>,
+    /// Per column `[lo, hi]` (inclusive) of valid `field` entries; `lo > hi` = none.
+    ranges: Vec<[u16; 2]>,
+}
+
+impl NormalScratch {
+    pub(crate) fn with_capacity(ws: &Workspace) -> Self {
+        let n = ws.voxel_count();
+        let cols = ws.dims[0] as usize * ws.dims[1] as usize;
+        Self { field: vec![[0.0; 4]; n], ranges: vec![[1, 0]; cols] }
+    }
+}
 
 /// True for a voxel of the truncation band.
 #[inline]
@@ -25,126 +45,167 @@ pub(crate) fn in_band(tsdf: f32) -> bool {
     tsdf.abs() < 1.0
 }
 
+/// The cached field and where it is valid.
+struct Field<'a> {
+    dims: [usize; 3],
+    samples: &'a [FieldSample],
+    ranges: &'a [[u16; 2]],
+}
+
 pub(crate) fn extract(
     ws: &Workspace,
     config: &FusionConfig,
     tsdf: &[f32],
     weight: &[f32],
-    field: &mut [FieldSample],
+    scratch: &mut NormalScratch,
     normals_out: &mut [f32],
 ) {
     let n = ws.voxel_count();
     let dims = ws.dims.map(|d| d as usize);
+    let [nx, ny, nz] = dims;
     let trunc = config.truncation_voxels;
-    build_field(dims, trunc, tsdf, weight, field);
+    scratch.field.resize(n, [0.0; 4]);
+    scratch.ranges.resize(nx * ny, [1, 0]);
+    band_ranges(dims, tsdf, &mut scratch.ranges);
+    build_field(dims, trunc, tsdf, weight, &scratch.ranges, &mut scratch.field);
+    let field = Field { dims, samples: &scratch.field, ranges: &scratch.ranges };
 
+    normals_out.fill(0.0);
     let (nx_out, rest) = normals_out.split_at_mut(n);
     let (ny_out, nz_out) = rest.split_at_mut(n);
     let min_g2 = config.min_gradient * config.min_gradient;
     let iterations = config.normal_iterations;
-    let [_, ny, nz] = dims;
     let mut missing = 0usize;
-    for idx in 0..n {
-        let out = if in_band(tsdf[idx]) {
-            let i = idx / (ny * nz);
-            let j = (idx / nz) % ny;
-            let k = idx % nz;
-            let x = [i as f32, j as f32, k as f32];
-            match nearest_surface_normal(dims, field, x, field[idx], trunc, iterations, min_g2) {
-                Some(nrm) => nrm,
-                None => {
-                    missing += 1;
-                    [0.0; 3]
+    for i in 0..nx {
+        for j in 0..ny {
+            let c = i * ny + j;
+            let [lo, hi] = scratch.ranges[c];
+            for k in lo as usize..=hi as usize {
+                let idx = c * nz + k;
+                if !in_band(tsdf[idx]) {
+                    continue;
+                }
+                let x = [i as f32, j as f32, k as f32];
+                let fx = field.samples[idx];
+                match nearest_surface_normal(&field, x, fx, trunc, iterations, min_g2) {
+                    Some(nrm) => {
+                        nx_out[idx] = nrm[0];
+                        ny_out[idx] = nrm[1];
+                        nz_out[idx] = nrm[2];
+                    }
+                    None => missing += 1,
                 }
             }
-        } else {
-            [0.0; 3]
-        };
-        nx_out[idx] = out[0];
-        ny_out[idx] = out[1];
-        nz_out[idx] = out[2];
+        }
     }
     if missing > 0 {
         fill_missing(dims, tsdf, nx_out, ny_out, nz_out);
     }
 }
 
-/// Caches F and ∇F for every voxel.
+/// Per column: the band voxels' k-range widened by one voxel (where the field is needed).
+fn band_ranges(dims: [usize; 3], tsdf: &[f32], ranges: &mut [[u16; 2]]) {
+    let nz = dims[2];
+    for (c, range) in ranges.iter_mut().enumerate() {
+        let col = &tsdf[c * nz..(c + 1) * nz];
+        *range = match (col.iter().position(|t| in_band(*t)), col.iter().rposition(|t| in_band(*t))) {
+            (Some(lo), Some(hi)) => [lo.saturating_sub(1) as u16, (hi + 1).min(nz - 1) as u16],
+            _ => [1, 0],
+        };
+    }
+}
+
+/// Caches F and ∇F inside each column's range.
 fn build_field(
     dims: [usize; 3],
     trunc: f32,
     tsdf: &[f32],
     weight: &[f32],
+    ranges: &[[u16; 2]],
     field: &mut [FieldSample],
 ) {
     let [nx, ny, nz] = dims;
-    let strides = [ny * nz, nz, 1];
-    // A neighbour is reliable if observed and not clamped at the band edge.
-    let reliable = |idx: usize| weight[idx] > 0.0 && in_band(tsdf[idx]);
+    // A neighbour is reliable if observed and inside the band; next to an unreliable neighbour
+    // the difference is one-sided. Grid borders count as unreliable.
+    #[inline(always)]
+    fn diff(lo: f32, lo_ok: bool, f0: f32, hi: f32, hi_ok: bool) -> f32 {
+        if lo_ok == hi_ok {
+            0.5 * (hi - lo)
+        } else if lo_ok {
+            f0 - lo
+        } else {
+            hi - f0
+        }
+    }
+    let ok = |idx: usize| weight[idx] > 0.0 && in_band(tsdf[idx]);
+    let v = |idx: usize| tsdf[idx] * trunc;
+    let sx = ny * nz;
     for i in 0..nx {
         for j in 0..ny {
-            for k in 0..nz {
-                let idx = (i * ny + j) * nz + k;
-                let c = [i, j, k];
-                let f0 = tsdf[idx];
-                let mut g = [0.0f32; 3];
-                for a in 0..3 {
-                    let st = strides[a];
-                    let lo = (c[a] > 0).then(|| idx - st);
-                    let hi = (c[a] + 1 < dims[a]).then(|| idx + st);
-                    g[a] = match (lo, hi) {
-                        (Some(l), Some(h)) => match (reliable(l), reliable(h)) {
-                            (true, false) => f0 - tsdf[l],
-                            (false, true) => tsdf[h] - f0,
-                            _ => 0.5 * (tsdf[h] - tsdf[l]),
-                        },
-                        (Some(l), None) => f0 - tsdf[l],
-                        (None, Some(h)) => tsdf[h] - f0,
-                        (None, None) => 0.0,
-                    };
-                }
-                // Never-observed voxels hold a clamped placeholder: mark them for `sample`.
-                let f = if weight[idx] > 0.0 { f0 * trunc } else { f32::NAN };
-                field[idx] = [f, g[0] * trunc, g[1] * trunc, g[2] * trunc];
+            let [lo, hi] = ranges[i * ny + j];
+            let col = (i * ny + j) * nz;
+            let (xm, xm_in) = if i > 0 { (col - sx, true) } else { (col, false) };
+            let (xp, xp_in) = if i + 1 < nx { (col + sx, true) } else { (col, false) };
+            let (ym, ym_in) = if j > 0 { (col - nz, true) } else { (col, false) };
+            let (yp, yp_in) = if j + 1 < ny { (col + nz, true) } else { (col, false) };
+            for k in lo as usize..=hi as usize {
+                let idx = col + k;
+                let f0 = v(idx);
+                let (a, b) = (xm + k, xp + k);
+                let gx = diff(v(a), xm_in && ok(a), f0, v(b), xp_in && ok(b));
+                let (a, b) = (ym + k, yp + k);
+                let gy = diff(v(a), ym_in && ok(a), f0, v(b), yp_in && ok(b));
+                let (a, b) = (idx - (k > 0) as usize, idx + (k + 1 < nz) as usize);
+                let gz = diff(v(a), k > 0 && ok(a), f0, v(b), k + 1 < nz && ok(b));
+                let f = if weight[idx] > 0.0 { f0 } else { f32::NAN };
+                field[idx] = [f, gx, gy, gz];
             }
         }
     }
 }
 
 /// Trilinear interpolation of the cached field at continuous voxel coordinates `p` (voxel
-/// centres at integers), clamped to the grid. Never-observed corners are left out and the
-/// weights renormalised; `None` if no corner was observed.
+/// centres at integers), clamped to the grid. Corners outside the cached ranges or never
+/// observed are left out and the weights renormalised; `None` if no corner is usable.
 #[inline]
-fn sample(dims: [usize; 3], field: &[FieldSample], p: [f32; 3]) -> Option<FieldSample> {
+fn sample(field: &Field<'_>, p: [f32; 3]) -> Option<FieldSample> {
+    let dims = field.dims;
     let mut i0 = [0usize; 3];
     let mut fr = [0.0f32; 3];
-    let mut st = [0usize; 3];
-    let strides = [dims[1] * dims[2], dims[2], 1];
+    let mut step = [0usize; 3];
     for a in 0..3 {
-        let max = (dims[a] - 1) as f32;
-        let c = if p[a].is_finite() { p[a].clamp(0.0, max) } else { 0.0 };
         if dims[a] < 2 {
             continue;
         }
-        let fl = c.floor().min(max - 1.0);
-        i0[a] = fl as usize;
-        fr[a] = c - fl;
-        st[a] = strides[a];
+        let max = (dims[a] - 1) as f32;
+        // NaN maps to 0; the clamp makes truncation a floor.
+        let c = p[a].max(0.0).min(max);
+        let fl = (c as usize).min(dims[a] - 2);
+        i0[a] = fl;
+        fr[a] = c - fl as f32;
+        step[a] = 1;
     }
-    let base = i0[0] * strides[0] + i0[1] * strides[1] + i0[2];
+    let nz = dims[2];
+    let (k0, k1) = (i0[2], i0[2] + step[2]);
     let mut acc = [0.0f32; 4];
     let mut total = 0.0f32;
-    for (dx, wx) in [(0, 1.0 - fr[0]), (st[0], fr[0])] {
-        for (dy, wy) in [(0, 1.0 - fr[1]), (st[1], fr[1])] {
+    for (di, wx) in [(0, 1.0 - fr[0]), (step[0], fr[0])] {
+        for (dj, wy) in [(0, 1.0 - fr[1]), (step[1], fr[1])] {
+            let c = (i0[0] + di) * dims[1] + i0[1] + dj;
+            let [lo, hi] = field.ranges[c];
+            let (lo, hi) = (lo as usize, hi as usize);
             let wxy = wx * wy;
-            let row = base + dx + dy;
-            for (corner, w) in [(field[row], wxy * (1.0 - fr[2])), (field[row + st[2]], wxy * fr[2])] {
+            for (k, w) in [(k0, wxy * (1.0 - fr[2])), (k1, wxy * fr[2])] {
+                if k < lo || k > hi {
+                    continue;
+                }
+                let corner = field.samples[c * nz + k];
                 if corner[0].is_nan() {
                     continue;
                 }
                 total += w;
-                for c in 0..4 {
-                    acc[c] += w * corner[c];
+                for (a, v) in acc.iter_mut().zip(corner) {
+                    *a += w * v;
                 }
             }
         }
@@ -163,8 +224,7 @@ fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
 
 /// Closest-point iterations from voxel centre `x` (voxel units) with cached sample `fx`.
 fn nearest_surface_normal(
-    dims: [usize; 3],
-    field: &[FieldSample],
+    field: &Field<'_>,
     x: [f32; 3],
     fx: FieldSample,
     trunc: f32,
@@ -185,23 +245,29 @@ fn nearest_surface_normal(
     let mut t = [x[0] - d * n[0], x[1] - d * n[1], x[2] - d * n[2]];
     let side = if f >= 0.0 { 1.0 } else { -1.0 };
     for it in 0..=iterations {
-        let Some(s) = sample(dims, field, t) else { break };
+        let Some(s) = sample(field, t) else { break };
         let gt = [s[1], s[2], s[3]];
         let gt2 = dot(gt, gt);
         if gt2 < min_g2 {
             break;
         }
-        let gl = gt2.sqrt();
-        n = [gt[0] / gl, gt[1] / gl, gt[2] / gl];
+        let inv_gl = 1.0 / gt2.sqrt();
+        n = [gt[0] * inv_gl, gt[1] * inv_gl, gt[2] * inv_gl];
         if it == iterations {
             break;
         }
         // Surface point near t, then the point at the same distance from x along n(t).
-        let dt = (s[0] / gl).clamp(-max_step, max_step);
+        let dt = (s[0] * inv_gl).clamp(-max_step, max_step);
         let q = [t[0] - dt * n[0], t[1] - dt * n[1], t[2] - dt * n[2]];
         let r = [x[0] - q[0], x[1] - q[1], x[2] - q[2]];
         let dist = dot(r, r).sqrt().min(max_step) * side;
-        t = [x[0] - dist * n[0], x[1] - dist * n[1], x[2] - dist * n[2]];
+        let next = [x[0] - dist * n[0], x[1] - dist * n[1], x[2] - dist * n[2]];
+        let moved = [next[0] - t[0], next[1] - t[1], next[2] - t[2]];
+        t = next;
+        // Converged (always after one step on planes): the normal at t will not change.
+        if dot(moved, moved) < CONVERGED_SQ {
+            break;
+        }
     }
     Some(n)
 }

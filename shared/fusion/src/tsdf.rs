@@ -1,8 +1,11 @@
 //! The projective TSDF volume and its integration loop.
-use crate::normals::{self, FieldSample};
+use crate::normals::{self, NormalScratch};
 use crate::{FusionConfig, FusionError, NormalGrid};
 use psgrasp_geometry::{depth::is_valid_depth, CameraIntrinsics, CameraModel, DepthError, DepthImage, Workspace};
 use std::sync::Mutex;
+
+/// Voxels of a column projected per batch in the integration loop.
+const MAX_COLUMN: usize = 64;
 
 /// What one call of [`TsdfVolume::integrate`] did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -33,21 +36,15 @@ pub struct IntegrationStats {
 /// observes them overrides the mark.
 ///
 /// Memory: 24 bytes per voxel (6 MiB for 64³), all allocated in [`TsdfVolume::new`]; integration
-/// and [`TsdfVolume::write_normal_grid`] allocate nothing afterwards (integration reallocates a
-/// per-pixel scratch only when the frame size changes).
+/// and [`TsdfVolume::write_normal_grid`] allocate nothing afterwards.
 pub struct TsdfVolume {
     workspace: Workspace,
     config: FusionConfig,
     tsdf: Vec<f32>,
     weight: Vec<f32>,
     frames: u32,
-    /// Per-pixel `(depth_m, ray_scale)` of the current frame; depth 0 = unusable.
-    pixels: Vec<[f32; 2]>,
-    /// Per-pixel ray length per unit depth, `‖K⁻¹ (u, v, 1)‖`, valid for `ray_scale_for`.
-    ray_scale: Vec<f32>,
-    ray_scale_for: Option<CameraIntrinsics>,
-    /// Scratch of the normal extraction: `[F, ∂F/∂x, ∂F/∂y, ∂F/∂z]` per voxel, F in voxels.
-    field: Mutex<Vec<FieldSample>>,
+    /// Scratch of the normal extraction (behind a lock so extraction can take `&self`).
+    scratch: Mutex<NormalScratch>,
 }
 
 impl std::fmt::Debug for TsdfVolume {
@@ -68,10 +65,7 @@ impl Clone for TsdfVolume {
             tsdf: self.tsdf.clone(),
             weight: self.weight.clone(),
             frames: self.frames,
-            pixels: Vec::new(),
-            ray_scale: Vec::new(),
-            ray_scale_for: None,
-            field: Mutex::new(vec![[0.0; 4]; self.tsdf.len()]),
+            scratch: Mutex::new(NormalScratch::with_capacity(&self.workspace)),
         }
     }
 }
@@ -88,10 +82,7 @@ impl TsdfVolume {
             tsdf: vec![1.0; n],
             weight: vec![0.0; n],
             frames: 0,
-            pixels: Vec::new(),
-            ray_scale: Vec::new(),
-            ray_scale_for: None,
-            field: Mutex::new(vec![[0.0; 4]; n]),
+            scratch: Mutex::new(NormalScratch::with_capacity(&workspace)),
         })
     }
 
@@ -168,51 +159,30 @@ impl TsdfVolume {
             }
             .into());
         }
-        let mut stats = self.prepare_pixels(depth, &k);
+        let mut stats = self.count_pixels(depth, &k);
         if stats.valid_pixels == 0 {
             if stats.out_of_range_pixels == 0 {
                 return Err(DepthError::NoValidPixels.into());
             }
             return Err(FusionError::EmptyView);
         }
-        if !self.sees_workspace(camera) {
+        if !self.sees_workspace(depth, camera) {
             return Err(FusionError::EmptyView);
         }
-        self.integrate_prepared(camera, &mut stats);
+        self.integrate_prepared(depth, camera, &mut stats);
         self.frames = self.frames.saturating_add(1);
         stats.frames_integrated = self.frames;
         Ok(stats)
     }
 
-    /// Copies the frame into the `(depth, ray scale)` scratch, zeroing unusable pixels.
-    fn prepare_pixels(&mut self, depth: &DepthImage, k: &CameraIntrinsics) -> IntegrationStats {
+    /// Counts usable, invalid and out-of-range pixels.
+    fn count_pixels(&self, depth: &DepthImage, k: &CameraIntrinsics) -> IntegrationStats {
         let n = k.pixel_count();
-        if self.ray_scale_for != Some(*k) || self.ray_scale.len() != n {
-            self.ray_scale.clear();
-            self.ray_scale.reserve(n);
-            for v in 0..k.height {
-                let b = (v as f32 - k.cy) / k.fy;
-                for u in 0..k.width {
-                    let a = (u as f32 - k.cx) / k.fx;
-                    self.ray_scale.push((1.0 + a * a + b * b).sqrt());
-                }
-            }
-            self.ray_scale_for = Some(*k);
-        }
-        self.pixels.resize(n, [0.0; 2]);
         let (lo, hi) = (self.config.min_depth_m, self.config.max_depth_m);
-        let mut valid = 0usize;
-        let mut invalid = 0usize;
-        for ((out, &d), &scale) in self.pixels.iter_mut().zip(&depth.data).zip(&self.ray_scale) {
-            if !is_valid_depth(d) {
-                invalid += 1;
-                *out = [0.0, scale];
-            } else if d < lo || d > hi {
-                *out = [0.0, scale];
-            } else {
-                valid += 1;
-                *out = [d, scale];
-            }
+        let (mut valid, mut invalid) = (0usize, 0usize);
+        for &d in &depth.data {
+            invalid += usize::from(!is_valid_depth(d));
+            valid += usize::from(in_range(d, lo, hi));
         }
         IntegrationStats {
             pixels: n,
@@ -225,25 +195,32 @@ impl TsdfVolume {
 
     /// True if some usable pixel back-projects into the workspace box. Checks a sparse lattice
     /// first (almost always enough), then every pixel.
-    fn sees_workspace(&self, camera: &CameraModel) -> bool {
+    fn sees_workspace(&self, depth: &DepthImage, camera: &CameraModel) -> bool {
         let k = &camera.intrinsics;
         let iso = camera.workspace_from_camera;
         let ext = self.workspace.extent();
         let w = k.width as usize;
+        let (lo, hi) = (self.config.min_depth_m, self.config.max_depth_m);
         let inside = |idx: usize| {
-            let d = self.pixels[idx][0];
-            if d <= 0.0 {
+            let d = depth.data[idx];
+            if !in_range(d, lo, hi) {
                 return false;
             }
             let (u, v) = ((idx % w) as f32, (idx / w) as f32);
             let p = iso * k.deproject(u, v, d);
             (0.0..ext.x).contains(&p.x) && (0.0..ext.y).contains(&p.y) && (0.0..ext.z).contains(&p.z)
         };
-        (0..self.pixels.len()).step_by(61).any(inside) || (0..self.pixels.len()).any(inside)
+        let n = depth.data.len();
+        (0..n).step_by(61).any(inside) || (0..n).any(inside)
     }
 
     /// The hot loop: one pass over all voxels, column by column (z fastest).
-    fn integrate_prepared(&mut self, camera: &CameraModel, stats: &mut IntegrationStats) {
+    fn integrate_prepared(
+        &mut self,
+        depth: &DepthImage,
+        camera: &CameraModel,
+        stats: &mut IntegrationStats,
+    ) {
         let k = camera.intrinsics;
         let camera_from_workspace = camera.workspace_from_camera.inverse();
         let r = camera_from_workspace.rotation.to_rotation_matrix().into_inner();
@@ -254,15 +231,31 @@ impl TsdfVolume {
         let inv_trunc = 1.0 / trunc;
         let max_w = self.config.max_weight;
         let carve = self.config.carve_free_space;
+        let inv_falloff = 1.0 / self.config.behind_falloff;
+        let min_behind = self.config.behind_min_weight;
+        let free_w = self.config.free_space_weight;
         let (fx, fy) = (k.fx, k.fy);
-        // +0.5 turns truncation toward zero into rounding to the nearest pixel centre.
-        let (cx, cy) = (k.cx + 0.5, k.cy + 0.5);
-        let (wf, hf) = (k.width as f32, k.height as f32);
-        let w = k.width as usize;
+        let (cx, cy) = (k.cx, k.cy);
+        let (wu, hu) = (k.width as usize, k.height as usize);
+        // Projections within half a pixel of the image are in view; the top-left pixel of the
+        // interpolation square is clamped so the square stays inside the image.
+        let (u_lo, u_hi) = (-0.5f32, k.width as f32 - 0.5);
+        let (v_lo, v_hi) = (-0.5f32, k.height as f32 - 0.5);
+        let (u_max, v_max) = (wu.saturating_sub(2) as f32, hu.saturating_sub(2) as f32);
+        let (sx, sy) = (usize::from(wu >= 2), if hu >= 2 { wu } else { 0 });
+        let w = k.width;
+        let bilinear = self.config.bilinear_depth;
+        let jump = self.config.max_depth_jump_m;
         let step = [r[(0, 2)] * s, r[(1, 2)] * s, r[(2, 2)] * s];
         let near = 1e-4f32;
-        let pixels = &self.pixels[..];
+        let depth = &depth.data[..];
+        let (lo, hi) = (self.config.min_depth_m, self.config.max_depth_m);
         let (mut band, mut free, mut occluded) = (0usize, 0usize, 0usize);
+        // Per-column scratch: pixel index (u32::MAX = not in view) and camera z of each voxel.
+        let mut pix = [0u32; MAX_COLUMN];
+        let mut zs = [0f32; MAX_COLUMN];
+        let mut ray = [0f32; MAX_COLUMN];
+        let mut frac = [[0f32; 2]; MAX_COLUMN];
         for i in 0..nx {
             for j in 0..ny {
                 let (px, py, pz) = ((i as f32 + 0.5) * s, (j as f32 + 0.5) * s, 0.5 * s);
@@ -272,46 +265,88 @@ impl TsdfVolume {
                     r[(2, 0)] * px + r[(2, 1)] * py + r[(2, 2)] * pz + t.z,
                 ];
                 let col = (i * ny + j) * nz;
-                let tsdf = &mut self.tsdf[col..col + nz];
-                let weight = &mut self.weight[col..col + nz];
-                for (kk, (ts, wt)) in tsdf.iter_mut().zip(weight.iter_mut()).enumerate() {
-                    let kf = kk as f32;
-                    let z = base[2] + kf * step[2];
-                    if z <= near {
-                        continue;
+                // Chunks of the column keep the projection branch-free (vectorisable).
+                for k0 in (0..nz).step_by(MAX_COLUMN) {
+                    let len = MAX_COLUMN.min(nz - k0);
+                    for kk in 0..len {
+                        let kf = (k0 + kk) as f32;
+                        let x = base[0] + kf * step[0];
+                        let y = base[1] + kf * step[1];
+                        let z = base[2] + kf * step[2];
+                        let inv_z = 1.0 / z;
+                        let uf = x * inv_z * fx + cx;
+                        let vf = y * inv_z * fy + cy;
+                        let inside = z > near && uf >= u_lo && uf < u_hi && vf >= v_lo && vf < v_hi;
+                        // Clamped, so truncation is a floor; NaN becomes 0.
+                        let u0 = uf.max(0.0).min(u_max) as u32;
+                        let v0 = vf.max(0.0).min(v_max) as u32;
+                        frac[kk] = [
+                            (uf - u0 as f32).clamp(0.0, 1.0),
+                            (vf - v0 as f32).clamp(0.0, 1.0),
+                        ];
+                        let index = v0.wrapping_mul(w).wrapping_add(u0);
+                        pix[kk] = if inside { index } else { u32::MAX };
+                        zs[kk] = z;
+                        // Ray length per unit depth through this voxel.
+                        ray[kk] = (x * x + y * y + z * z).sqrt() * inv_z;
                     }
-                    let inv_z = 1.0 / z;
-                    let uf = (base[0] + kf * step[0]) * inv_z * fx + cx;
-                    let vf = (base[1] + kf * step[1]) * inv_z * fy + cy;
-                    if !(uf >= 0.0 && uf < wf && vf >= 0.0 && vf < hf) {
-                        continue;
-                    }
-                    let [d, ray] = pixels[vf as usize * w + uf as usize];
-                    if d <= 0.0 {
-                        continue;
-                    }
-                    let sdf = (d - z) * ray;
-                    if sdf < -trunc {
-                        if *wt == 0.0 && *ts != -1.0 {
-                            *ts = -1.0;
-                            occluded += 1;
-                        }
-                        continue;
-                    }
-                    let value = sdf * inv_trunc;
-                    let value = if value >= 1.0 {
-                        if !carve {
+                    let tsdf = &mut self.tsdf[col + k0..col + k0 + len];
+                    let weight = &mut self.weight[col + k0..col + k0 + len];
+                    for kk in 0..len {
+                        let p = pix[kk] as usize;
+                        if p >= depth.len() {
                             continue;
                         }
-                        free += 1;
-                        1.0
-                    } else {
-                        band += 1;
-                        value
-                    };
-                    let w0 = *wt;
-                    *ts = (*ts * w0 + value) / (w0 + 1.0);
-                    *wt = (w0 + 1.0).min(max_w);
+                        let [fu, fv] = frac[kk];
+                        let corners = [p, p + sx, p + sy, p + sx + sy];
+                        let wts = [(1.0 - fu) * (1.0 - fv), fu * (1.0 - fv), (1.0 - fu) * fv, fu * fv];
+                        let ds = corners.map(|c| depth[c]);
+                        let all_ok = ds.iter().all(|&d| in_range(d, lo, hi));
+                        let d = if bilinear
+                            && all_ok
+                            && ds.iter().fold(f32::MIN, |a, &b| a.max(b))
+                                - ds.iter().fold(f32::MAX, |a, &b| a.min(b))
+                                <= jump
+                        {
+                            ds[0] * wts[0] + ds[1] * wts[1] + ds[2] * wts[2] + ds[3] * wts[3]
+                        } else {
+                            // Nearest pixel: the corner with the largest weight.
+                            let near_c = usize::from(fu >= 0.5) + 2 * usize::from(fv >= 0.5);
+                            let d = ds[near_c];
+                            if !in_range(d, lo, hi) {
+                                continue;
+                            }
+                            d
+                        };
+                        let sdf = (d - zs[kk]) * ray[kk];
+                        let (ts, wt) = (&mut tsdf[kk], &mut weight[kk]);
+                        if sdf < -trunc {
+                            if *wt == 0.0 && *ts != -1.0 {
+                                *ts = -1.0;
+                                occluded += 1;
+                            }
+                            continue;
+                        }
+                        let value = sdf * inv_trunc;
+                        let (value, wv) = if value >= 1.0 {
+                            if !carve {
+                                continue;
+                            }
+                            free += 1;
+                            (1.0, free_w)
+                        } else {
+                            band += 1;
+                            let wv = if value < 0.0 {
+                                (1.0 + value * inv_falloff).max(min_behind)
+                            } else {
+                                1.0
+                            };
+                            (value, wv)
+                        };
+                        let w0 = *wt;
+                        *ts = (*ts * w0 + value * wv) / (w0 + wv);
+                        *wt = (w0 + wv).min(max_w);
+                    }
                 }
             }
         }
@@ -344,17 +379,23 @@ impl TsdfVolume {
 
     fn extract(&self, normals_out: &mut [f32], tsdf_out: &mut [f32]) {
         // The scratch holds no state between calls: a poisoned lock is harmless.
-        let mut field = self.field.lock().unwrap_or_else(|e| e.into_inner());
+        let mut scratch = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         tsdf_out.copy_from_slice(&self.tsdf);
         normals::extract(
             &self.workspace,
             &self.config,
             &self.tsdf,
             &self.weight,
-            &mut field,
+            &mut scratch,
             normals_out,
         );
     }
+}
+
+/// A usable depth: finite, positive and inside `[lo, hi]` (NaN fails every comparison).
+#[inline(always)]
+fn in_range(d: f32, lo: f32, hi: f32) -> bool {
+    d > 0.0 && d >= lo && d <= hi
 }
 
 fn check_buffers(ws: &Workspace, normals: &[f32], tsdf: &[f32]) -> Result<(), FusionError> {
