@@ -310,13 +310,17 @@ impl TsdfVolume {
                         {
                             ds[0] * wts[0] + ds[1] * wts[1] + ds[2] * wts[2] + ds[3] * wts[3]
                         } else {
-                            // Nearest pixel: the corner with the largest weight.
-                            let near_c = usize::from(fu >= 0.5) + 2 * usize::from(fv >= 0.5);
-                            let d = ds[near_c];
-                            if !in_range(d, lo, hi) {
+                            // Nearest usable pixel: the usable corner of largest weight.
+                            let mut best = (-1.0f32, 0.0f32);
+                            for (&d, &wc) in ds.iter().zip(&wts) {
+                                if wc > best.0 && in_range(d, lo, hi) {
+                                    best = (wc, d);
+                                }
+                            }
+                            if best.0 < 0.0 {
                                 continue;
                             }
-                            d
+                            best.1
                         };
                         let sdf = (d - zs[kk]) * ray[kk];
                         let (ts, wt) = (&mut tsdf[kk], &mut weight[kk]);

@@ -21,7 +21,7 @@ fn fuse(scene: &Scene, cameras: &[CameraModel]) -> NormalGrid {
 fn check_scene(name: &str, scene: &Scene, cameras: &[CameraModel]) -> (NormalGrid, NormalReport) {
     let grid = fuse(scene, cameras);
     let report = evaluate_normals(&grid, scene, cameras, MARGIN);
-    let (cols, max_err, mean_err) = zero_crossing_errors(&grid, scene, cameras, MARGIN);
+    let (cols, missing, max_err, mean_err) = zero_crossing_errors(&grid, scene, cameras, MARGIN);
     println!(
         "{name}: band {} evaluated {} within5° {:.4} p50 {:.2}° p95 {:.2}° p99 {:.2}° zero-normals {} | zero crossing cols {cols} max {:.2} mm mean {:.2} mm",
         report.band,
@@ -35,6 +35,7 @@ fn check_scene(name: &str, scene: &Scene, cameras: &[CameraModel]) -> (NormalGri
         mean_err * 1e3
     );
     assert!(cols > 1000, "{name}: only {cols} columns checked");
+    assert_eq!(missing, 0, "{name}: columns without a zero crossing");
     assert!(max_err < 0.5 * 0.009, "{name}: zero crossing off by {:.2} mm", max_err * 1e3);
     assert!(report.evaluated as f32 >= 0.75 * report.band as f32, "{name}: too much excluded: {report:?}");
     assert!(report.fraction_within() >= 0.95, "{name}: only {:.3} within 5°", report.fraction_within());

@@ -329,12 +329,12 @@ pub fn evaluate_normals(grid: &NormalGrid, scene: &Scene, cameras: &[CameraModel
 
 /// Zero crossings of the TSDF along vertical voxel columns against the analytic top surface.
 /// Columns whose surface is steep (|n_z| < 0.5), near a box edge or unseen are skipped.
-/// Returns (columns checked, max error m, mean error m).
-pub fn zero_crossing_errors(grid: &NormalGrid, scene: &Scene, cameras: &[CameraModel], margin: f32) -> (usize, f32, f32) {
+/// Returns (columns checked, columns without a crossing, max error m, mean error m).
+pub fn zero_crossing_errors(grid: &NormalGrid, scene: &Scene, cameras: &[CameraModel], margin: f32) -> (usize, usize, f32, f32) {
     let ws = grid.workspace;
     let s = ws.voxel_size_m;
     let [nx, ny, nz] = ws.dims.map(|d| d as usize);
-    let (mut count, mut max, mut sum) = (0usize, 0.0f32, 0.0f32);
+    let (mut count, mut missing, mut max, mut sum) = (0usize, 0usize, 0.0f32, 0.0f32);
     for i in 0..nx {
         for j in 0..ny {
             let c = ws.voxel_center(i, j, nz - 1);
@@ -372,10 +372,8 @@ pub fn zero_crossing_errors(grid: &NormalGrid, scene: &Scene, cameras: &[CameraM
             // First + → − crossing from the top between two band voxels.
             let col = |k: usize| grid.tsdf[ws.index(i, j, k)];
             let Some(k) = (1..nz).rev().find(|&k| col(k) >= 0.0 && col(k - 1) < 0.0 && col(k) < 1.0 && col(k - 1) > -1.0) else {
-                let vals: Vec<f32> = (0..nz).map(col).collect();
-                eprintln!("no crossing at column ({i}, {j}), surface z {:.4}: {vals:?}", hit.z);
                 count += 1;
-                max = f32::INFINITY;
+                missing += 1;
                 continue;
             };
             let (a, b) = (col(k - 1), col(k));
@@ -386,7 +384,7 @@ pub fn zero_crossing_errors(grid: &NormalGrid, scene: &Scene, cameras: &[CameraM
             sum += e;
         }
     }
-    (count, max, sum / count.max(1) as f32)
+    (count, missing, max, sum / (count - missing).max(1) as f32)
 }
 
 pub fn angle_deg(a: &Vector3<f32>, b: &Vector3<f32>) -> f32 {
