@@ -2,9 +2,13 @@
 //!
 //! For one normal grid:
 //!
-//! 1. **Surface points.** Every voxel of the surface band (|tsdf|·truncation ≤
-//!    [`AnalyticConfig::surface_band_voxels`] voxels) with a stored normal is a candidate first
-//!    contact, refined onto the surface as `centre − tsdf·truncation·n`. Contacts whose outward
+//! 1. **Surface points.** Every free voxel (tsdf ≥ 0) with an occupied 6-neighbour and a stored
+//!    normal `n` is a candidate first contact, placed at `centre − d·n`. `d` is the smaller of the
+//!    stored distance `tsdf·truncation` and the distance to where the TSDF crosses zero along `−n`
+//!    (searched up to [`AnalyticConfig::surface_search_voxels`]): both are at least the true
+//!    distance for an exact field, and a projective TSDF overstates distances to surfaces seen at
+//!    grazing angles — the sides of objects in a top-down view — where the crossing is the better
+//!    estimate, while at edges the stored value is. Contacts whose outward
 //!    normal is within [`AnalyticConfig::skip_upward_normals_deg`] of straight up are skipped: their
 //!    inward ray runs down into whatever supports the object, never to a graspable opposite face.
 //! 2. **Sampling (seeded).** Up to [`AnalyticConfig::max_contact_samples`] contacts are drawn without
@@ -48,9 +52,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AnalyticConfig {
-    /// Half-thickness of the surface band in voxels: voxels with |tsdf|·truncation below this many
-    /// voxel sizes are candidate contacts (0.6 keeps about one layer per surface).
-    pub surface_band_voxels: f32,
+    /// How far (voxels) the zero crossing is searched along `−n` from a free voxel next to the
+    /// surface; without a crossing, stored distances beyond this are not trusted.
+    pub surface_search_voxels: f32,
     /// A stored or interpolated normal shorter than this is "no normal" (outside the band).
     pub min_normal_norm: f32,
     /// Contacts whose outward normal is within this angle of straight up are not sampled.
@@ -143,7 +147,7 @@ impl ContactRegion {
 impl Default for AnalyticConfig {
     fn default() -> Self {
         Self {
-            surface_band_voxels: 0.6,
+            surface_search_voxels: 1.5,
             min_normal_norm: 0.5,
             skip_upward_normals_deg: 25.0,
             max_contact_samples: 4000,
@@ -179,8 +183,8 @@ impl AnalyticConfig {
     pub fn validate(&self) -> Result<(), InferenceError> {
         let c = self;
         check(
-            c.surface_band_voxels > 0.0 && c.surface_band_voxels <= 3.0,
-            "surface_band_voxels",
+            c.surface_search_voxels > 0.0 && c.surface_search_voxels <= 3.0,
+            "surface_search_voxels",
             "must lie in (0, 3]",
         )?;
         check(
@@ -366,12 +370,26 @@ impl AnalyticBackend {
     /// Candidate first contacts of the grid, in voxel order.
     fn surface_points(&self, grid: &NormalGridView<'_>) -> Vec<SurfacePoint> {
         let ws = &grid.workspace;
-        let band = self.cfg.surface_band_voxels * ws.voxel_size_m;
+        let [nx, ny, nz] = ws.dims.map(|d| d as usize);
         let up_cos = self.cfg.skip_upward_normals_deg.to_radians().cos();
+        let search = self.cfg.surface_search_voxels * ws.voxel_size_m;
+        let tsdf = grid.tsdf;
         let mut out = Vec::new();
-        for (idx, &t) in grid.tsdf.iter().enumerate() {
-            let d = t * grid.truncation_m;
-            if d.abs() > band {
+        for (idx, &t) in tsdf.iter().enumerate() {
+            if t < 0.0 {
+                continue;
+            }
+            let [i, j, k] = ws.unindex(idx);
+            // A free voxel next to an occupied one: the surface passes between them.
+            let (sy, sz) = (nz, 1);
+            let sx = ny * nz;
+            let behind = (i > 0 && tsdf[idx - sx] < 0.0)
+                || (i + 1 < nx && tsdf[idx + sx] < 0.0)
+                || (j > 0 && tsdf[idx - sy] < 0.0)
+                || (j + 1 < ny && tsdf[idx + sy] < 0.0)
+                || (k > 0 && tsdf[idx - sz] < 0.0)
+                || (k + 1 < nz && tsdf[idx + sz] < 0.0);
+            if !behind {
                 continue;
             }
             let n = Vector3::from(grid.normal(idx));
@@ -383,14 +401,56 @@ impl AnalyticBackend {
             if n.z >= up_cos {
                 continue;
             }
-            let [i, j, k] = ws.unindex(idx);
-            let point = ws.voxel_center(i, j, k) - n * d;
+            // Two estimates of the distance to the surface, both at least the true one when the
+            // field is exact or overstated (projective): the stored value and the zero crossing
+            // along −n. The smaller is the better; the stored value alone only if plausible.
+            let centre = ws.voxel_center(i, j, k);
+            let stored = t * grid.truncation_m;
+            let d = match self.surface_along(grid, &centre, &n) {
+                Some(crossing) => stored.min(crossing),
+                None if stored <= search => stored,
+                None => continue,
+            };
+            let point = centre - n * d;
             if self.cfg.contact_region.is_some_and(|r| !r.contains(&point)) {
                 continue;
             }
             out.push(SurfacePoint { point, normal: n });
         }
         out
+    }
+
+    /// Distance from the free point `from` along `−normal` to where the TSDF crosses zero, if
+    /// within [`AnalyticConfig::surface_search_voxels`].
+    fn surface_along(
+        &self,
+        grid: &NormalGridView<'_>,
+        from: &Point3<f32>,
+        normal: &Vector3<f32>,
+    ) -> Option<f32> {
+        let ws = &grid.workspace;
+        let step = self.cfg.ray_step_voxels * ws.voxel_size_m;
+        let limit = self.cfg.surface_search_voxels * ws.voxel_size_m;
+        let (mut dp, mut vp) = (0.0, ws.trilinear(grid.tsdf, from));
+        let mut d = step;
+        while d <= limit + 1e-6 {
+            let p = from - normal * d;
+            if !ws.contains(&p) {
+                return None;
+            }
+            let v = ws.trilinear(grid.tsdf, &p);
+            if v < 0.0 {
+                let at = if vp > v {
+                    dp + (d - dp) * vp / (vp - v)
+                } else {
+                    d
+                };
+                return Some(at);
+            }
+            (dp, vp) = (d, v);
+            d += step;
+        }
+        None
     }
 
     /// Marches from `start` along unit `dir` to where the ray leaves the occupied region.

@@ -1,9 +1,9 @@
 //! The observed scene as occupied voxels, and a fast gripper collision test against them.
 //!
 //! A voxel is occupied when its normalised TSDF is below [`OccupancyConfig::occupied_below_tsdf`]:
-//! everything behind an observed surface counts, including the unobserved space under and behind
-//! objects (fusion stores −1 there), so the test is conservative about what the camera could not see.
-//! Space outside the grid is free.
+//! everything behind an observed surface counts, by default including the unobserved space under
+//! and behind objects (fusion stores −1 there), so the test is conservative about what the camera
+//! could not see ([`OccupancyConfig::unobserved_is_occupied`]). Space outside the grid is free.
 //!
 //! Boxes are tested against voxel *centres*: a voxel collides with a box when its centre lies inside
 //! the box grown by `margin` (the same rule as [`OrientedBox::contains`]). The grid keeps, per
@@ -23,12 +23,21 @@ pub struct OccupancyConfig {
     /// voxel whose centre lies behind the observed surface; a small positive value also marks a
     /// thin layer in front of it (more conservative).
     pub occupied_below_tsdf: f32,
+    /// Count unobserved voxels (normalised TSDF at or below `unobserved_at_or_below_tsdf`: beyond
+    /// the truncation band behind a surface, e.g. the shadow of an object) as occupied. `true` is
+    /// the safe choice; `false` checks only against space seen to be behind a surface (within the
+    /// band), like point-cloud based checkers such as GPD do.
+    pub unobserved_is_occupied: bool,
+    /// Normalised TSDF at or below which a voxel counts as unobserved (fusion stores exactly −1).
+    pub unobserved_at_or_below_tsdf: f32,
 }
 
 impl Default for OccupancyConfig {
     fn default() -> Self {
         Self {
             occupied_below_tsdf: 0.0,
+            unobserved_is_occupied: true,
+            unobserved_at_or_below_tsdf: -0.999,
         }
     }
 }
@@ -40,6 +49,14 @@ impl OccupancyConfig {
             return Err(InferenceError::InvalidConfig {
                 field: "occupied_below_tsdf",
                 reason: "must lie in (-1, 1]",
+            });
+        }
+        if !(self.unobserved_at_or_below_tsdf >= -1.0
+            && self.unobserved_at_or_below_tsdf < self.occupied_below_tsdf)
+        {
+            return Err(InferenceError::InvalidConfig {
+                field: "unobserved_at_or_below_tsdf",
+                reason: "must lie in [-1, occupied_below_tsdf)",
             });
         }
         Ok(())
@@ -195,7 +212,9 @@ impl OccupancyGrid {
             let mut count = 0u16;
             for (k, &v) in values.iter().enumerate() {
                 // NaN counts as occupied: unknown space is treated conservatively.
-                if v < cfg.occupied_below_tsdf || v.is_nan() {
+                let occupied = v < cfg.occupied_below_tsdf
+                    && (cfg.unobserved_is_occupied || v > cfg.unobserved_at_or_below_tsdf);
+                if occupied || v.is_nan() {
                     count += 1;
                 }
                 out[k + 1] = count;
@@ -604,6 +623,30 @@ mod tests {
     }
 
     #[test]
+    fn unobserved_space_is_occupied_only_when_asked() {
+        // One column: free above, a band behind the surface, then unobserved (−1) below.
+        let ws = Workspace {
+            dims: [1, 1, 6],
+            voxel_size_m: 0.01,
+        };
+        let tsdf = [-1.0, -1.0, -0.6, -0.2, 0.3, 1.0];
+        let safe = OccupancyGrid::from_tsdf(ws, &tsdf, &OccupancyConfig::default()).unwrap();
+        assert_eq!(safe.occupied_count(), 4);
+        let seen_only = OccupancyConfig {
+            unobserved_is_occupied: false,
+            ..OccupancyConfig::default()
+        };
+        let optimistic = OccupancyGrid::from_tsdf(ws, &tsdf, &seen_only).unwrap();
+        assert_eq!(optimistic.occupied_count(), 2);
+        assert!(!optimistic.is_occupied(0, 0, 0) && optimistic.is_occupied(0, 0, 2));
+        let bad = OccupancyConfig {
+            unobserved_at_or_below_tsdf: 0.5,
+            ..OccupancyConfig::default()
+        };
+        assert!(OccupancyGrid::from_tsdf(ws, &tsdf, &bad).is_err());
+    }
+
+    #[test]
     fn bad_inputs_are_errors() {
         let ws = Workspace {
             dims: [2, 2, 2],
@@ -618,7 +661,8 @@ mod tests {
                 ws,
                 &[0.0; 8],
                 &OccupancyConfig {
-                    occupied_below_tsdf: 2.0
+                    occupied_below_tsdf: 2.0,
+                    ..OccupancyConfig::default()
                 }
             ),
             Err(InferenceError::InvalidConfig { .. })
