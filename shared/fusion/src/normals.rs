@@ -29,13 +29,15 @@ pub(crate) struct NormalScratch {
     field: Vec<FieldSample>,
     /// Per column `[lo, hi]` (inclusive) of valid `field` entries; `lo > hi` = none.
     ranges: Vec<[u16; 2]>,
+    /// Gradient smoothing buffer.
+    smoothed: Vec<[f32; 3]>,
 }
 
 impl NormalScratch {
     pub(crate) fn with_capacity(ws: &Workspace) -> Self {
         let n = ws.voxel_count();
         let cols = ws.dims[0] as usize * ws.dims[1] as usize;
-        Self { field: vec![[0.0; 4]; n], ranges: vec![[1, 0]; cols] }
+        Self { field: vec![[0.0; 4]; n], ranges: vec![[1, 0]; cols], smoothed: vec![[0.0; 3]; n] }
     }
 }
 
@@ -68,6 +70,12 @@ pub(crate) fn extract(
     scratch.ranges.resize(nx * ny, [1, 0]);
     band_ranges(dims, tsdf, &mut scratch.ranges);
     build_field(dims, trunc, tsdf, weight, &scratch.ranges, &mut scratch.field);
+    if config.smooth_gradients {
+        scratch.smoothed.resize(n, [0.0; 3]);
+        for axis in [2, 1, 0] {
+            smooth_gradients(dims, axis, tsdf, weight, &scratch.ranges, &mut scratch.field, &mut scratch.smoothed);
+        }
+    }
     let field = Field { dims, samples: &scratch.field, ranges: &scratch.ranges };
 
     normals_out.fill(0.0);
@@ -160,6 +168,69 @@ fn build_field(
                 let f = if weight[idx] > 0.0 { f0 } else { f32::NAN };
                 field[idx] = [f, gx, gy, gz];
             }
+        }
+    }
+}
+
+/// One pass of the separable [1, 2, 1] smoothing of the cached gradients of band voxels along
+/// `axis`; neighbours outside the band or the cached ranges are left out (weights renormalised).
+fn smooth_gradients(
+    dims: [usize; 3],
+    axis: usize,
+    tsdf: &[f32],
+    weight: &[f32],
+    ranges: &[[u16; 2]],
+    field: &mut [FieldSample],
+    out: &mut [[f32; 3]],
+) {
+    let [nx, ny, nz] = dims;
+    let band = |idx: usize| weight[idx] > 0.0 && in_band(tsdf[idx]);
+    let cached = |c: usize, k: usize| {
+        let [lo, hi] = ranges[c];
+        (lo as usize..=hi as usize).contains(&k)
+    };
+    for i in 0..nx {
+        for j in 0..ny {
+            let c = i * ny + j;
+            let [lo, hi] = ranges[c];
+            for k in lo as usize..=hi as usize {
+                let idx = c * nz + k;
+                let g = field[idx];
+                if !band(idx) {
+                    out[idx] = [g[1], g[2], g[3]];
+                    continue;
+                }
+                let mut acc = [2.0 * g[1], 2.0 * g[2], 2.0 * g[3]];
+                let mut total = 2.0f32;
+                let coord = [i, j, k];
+                for dir in [-1isize, 1] {
+                    let q = coord[axis] as isize + dir;
+                    if q < 0 || q >= dims[axis] as isize {
+                        continue;
+                    }
+                    let mut nb = coord;
+                    nb[axis] = q as usize;
+                    let nc = nb[0] * ny + nb[1];
+                    let nidx = nc * nz + nb[2];
+                    if !cached(nc, nb[2]) || !band(nidx) {
+                        continue;
+                    }
+                    let h = field[nidx];
+                    acc[0] += h[1];
+                    acc[1] += h[2];
+                    acc[2] += h[3];
+                    total += 1.0;
+                }
+                out[idx] = acc.map(|a| a / total);
+            }
+        }
+    }
+    for (c, &[lo, hi]) in ranges.iter().enumerate() {
+        for idx in c * nz + lo as usize..=c * nz + hi as usize {
+            let [a, b, d] = out[idx];
+            field[idx][1] = a;
+            field[idx][2] = b;
+            field[idx][3] = d;
         }
     }
 }
