@@ -359,9 +359,10 @@ impl OccupancyGrid {
         let [nx, ny, nz] = self.workspace.dims.map(|d| d as usize);
         let lo = grown.iter().fold(grown[0].lo, |a, g| a.inf(&g.lo));
         let hi = grown.iter().fold(grown[0].hi, |a, g| a.sup(&g.hi));
-        let (Some((i0, i1)), Some((j0, j1))) = (
+        let (Some((i0, i1)), Some((j0, j1)), Some((kb, _))) = (
             centre_range(lo.x, hi.x, s, nx),
             centre_range(lo.y, hi.y, s, ny),
+            centre_range(lo.z, hi.z, s, nz),
         ) else {
             return 0;
         };
@@ -370,6 +371,10 @@ impl OccupancyGrid {
         for i in i0..=i1 {
             let x = (i as f32 + 0.5) * s;
             for j in j0..=j1 {
+                // Everything occupied in this column lies below the lowest box layer.
+                if (self.heights[i * ny + j] as usize) <= kb {
+                    continue;
+                }
                 let y = (j as f32 + 0.5) * s;
                 ranges.clear();
                 ranges.extend(
