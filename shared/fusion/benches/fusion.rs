@@ -21,15 +21,29 @@ fn stats(mut v: Vec<f64>) -> (f64, f64, f64) {
 }
 
 fn main() {
-    let iterations: usize =
-        std::env::var("FUSION_BENCH_ITERS").ok().and_then(|s| s.parse().ok()).unwrap_or(200);
-    let scene = Scene { shapes: vec![floor(), sphere(), cuboid()] };
+    let iterations: usize = std::env::var("FUSION_BENCH_ITERS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(200);
+    let scene = Scene {
+        shapes: vec![floor(), sphere(), cuboid()],
+    };
     let ws = workspace();
     let c = ws.extent() * 0.5;
-    let hd = CameraIntrinsics { width: 1280, height: 720, fx: 900.0, fy: 900.0, cx: 639.5, cy: 359.5 };
+    let hd = CameraIntrinsics {
+        width: 1280,
+        height: 720,
+        fx: 900.0,
+        fy: 900.0,
+        cx: 639.5,
+        cy: 359.5,
+    };
     let cameras = [
         ("640×480", top_camera()),
-        ("1280×720", CameraModel::top_down(hd, Point3::new(c.x, c.y, FLOOR_Z + 0.8))),
+        (
+            "1280×720",
+            CameraModel::top_down(hd, Point3::new(c.x, c.y, FLOOR_Z + 0.8)),
+        ),
     ];
     println!("| frame | grid | stage | mean ms | p50 ms | p99 ms |");
     println!("|---|---|---|---|---|---|");
@@ -58,8 +72,18 @@ fn main() {
             t_all.push(t0.elapsed().as_secs_f64() * 1e3);
         }
         let dims = ws.dims;
-        let grid = format!("{}×{}×{} @ {} mm", dims[0], dims[1], dims[2], ws.voxel_size_m * 1e3);
-        for (stage, v) in [("integrate", t_int), ("normal extraction", t_ext), ("total (reset+integrate+extract)", t_all)] {
+        let grid = format!(
+            "{}×{}×{} @ {} mm",
+            dims[0],
+            dims[1],
+            dims[2],
+            ws.voxel_size_m * 1e3
+        );
+        for (stage, v) in [
+            ("integrate", t_int),
+            ("normal extraction", t_ext),
+            ("total (reset+integrate+extract)", t_all),
+        ] {
             let (mean, p50, p99) = stats(v);
             println!("| {name} | {grid} | {stage} | {mean:.3} | {p50:.3} | {p99:.3} |");
         }

@@ -79,34 +79,60 @@ impl FusionConfig {
     /// Checks every field.
     pub fn validate(&self) -> Result<(), FusionError> {
         if !(self.truncation_voxels.is_finite() && (1.0..=64.0).contains(&self.truncation_voxels)) {
-            return Err(FusionError::InvalidConfig("truncation_voxels must be in [1, 64]"));
+            return Err(FusionError::InvalidConfig(
+                "truncation_voxels must be in [1, 64]",
+            ));
         }
         if !(self.min_depth_m.is_finite() && self.min_depth_m >= 0.0) {
-            return Err(FusionError::InvalidConfig("min_depth_m must be finite and >= 0"));
+            return Err(FusionError::InvalidConfig(
+                "min_depth_m must be finite and >= 0",
+            ));
         }
         if !(self.max_depth_m.is_finite() && self.max_depth_m > self.min_depth_m) {
-            return Err(FusionError::InvalidConfig("max_depth_m must be finite and > min_depth_m"));
+            return Err(FusionError::InvalidConfig(
+                "max_depth_m must be finite and > min_depth_m",
+            ));
         }
         if !(self.max_weight.is_finite() && self.max_weight >= 1.0) {
-            return Err(FusionError::InvalidConfig("max_weight must be finite and >= 1"));
+            return Err(FusionError::InvalidConfig(
+                "max_weight must be finite and >= 1",
+            ));
         }
-        if !(self.free_space_weight.is_finite() && self.free_space_weight > 0.0 && self.free_space_weight <= 1.0) {
-            return Err(FusionError::InvalidConfig("free_space_weight must be in (0, 1]"));
+        if !(self.free_space_weight.is_finite()
+            && self.free_space_weight > 0.0
+            && self.free_space_weight <= 1.0)
+        {
+            return Err(FusionError::InvalidConfig(
+                "free_space_weight must be in (0, 1]",
+            ));
         }
         if !(self.behind_falloff.is_finite() && self.behind_falloff > 0.0) {
-            return Err(FusionError::InvalidConfig("behind_falloff must be finite and > 0"));
+            return Err(FusionError::InvalidConfig(
+                "behind_falloff must be finite and > 0",
+            ));
         }
-        if !(self.behind_min_weight.is_finite() && self.behind_min_weight > 0.0 && self.behind_min_weight <= 1.0) {
-            return Err(FusionError::InvalidConfig("behind_min_weight must be in (0, 1]"));
+        if !(self.behind_min_weight.is_finite()
+            && self.behind_min_weight > 0.0
+            && self.behind_min_weight <= 1.0)
+        {
+            return Err(FusionError::InvalidConfig(
+                "behind_min_weight must be in (0, 1]",
+            ));
         }
         if !(self.max_depth_jump_m.is_finite() && self.max_depth_jump_m >= 0.0) {
-            return Err(FusionError::InvalidConfig("max_depth_jump_m must be finite and >= 0"));
+            return Err(FusionError::InvalidConfig(
+                "max_depth_jump_m must be finite and >= 0",
+            ));
         }
         if self.normal_iterations > 32 {
-            return Err(FusionError::InvalidConfig("normal_iterations must be <= 32"));
+            return Err(FusionError::InvalidConfig(
+                "normal_iterations must be <= 32",
+            ));
         }
         if !(self.min_gradient.is_finite() && self.min_gradient > 0.0) {
-            return Err(FusionError::InvalidConfig("min_gradient must be finite and > 0"));
+            return Err(FusionError::InvalidConfig(
+                "min_gradient must be finite and > 0",
+            ));
         }
         Ok(())
     }

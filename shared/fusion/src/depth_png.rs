@@ -50,8 +50,10 @@ pub fn load_depth_png(path: impl AsRef<Path>, unit_m: f32) -> Result<DepthImage,
         return Err(DepthError::BadUnit(unit_m).into());
     }
     let path = path.as_ref();
-    let file = File::open(path)
-        .map_err(|source| DepthPngError::Io { path: path.display().to_string(), source })?;
+    let file = File::open(path).map_err(|source| DepthPngError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
     let mut decoder = png::Decoder::new(BufReader::new(file));
     decoder.set_transformations(png::Transformations::IDENTITY);
     let mut reader = decoder.read_info()?;
@@ -69,7 +71,10 @@ pub fn load_depth_png(path: impl AsRef<Path>, unit_m: f32) -> Result<DepthImage,
     let mut buf = vec![0u8; reader.output_buffer_size()];
     let frame = reader.next_frame(&mut buf)?;
     let bytes = &buf[..frame.buffer_size()];
-    let raw: Vec<u16> = bytes.chunks_exact(2).map(|b| u16::from_be_bytes([b[0], b[1]])).collect();
+    let raw: Vec<u16> = bytes
+        .chunks_exact(2)
+        .map(|b| u16::from_be_bytes([b[0], b[1]]))
+        .collect();
     Ok(DepthImage::from_u16(width, height, &raw, unit_m)?)
 }
 
@@ -94,13 +99,19 @@ pub fn save_depth_png(
         .into());
     }
     let path = path.as_ref();
-    let file = File::create(path)
-        .map_err(|source| DepthPngError::Io { path: path.display().to_string(), source })?;
+    let file = File::create(path).map_err(|source| DepthPngError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
     let mut encoder = png::Encoder::new(BufWriter::new(file), depth.width, depth.height);
     encoder.set_color(png::ColorType::Grayscale);
     encoder.set_depth(png::BitDepth::Sixteen);
     let mut writer = encoder.write_header()?;
-    let bytes: Vec<u8> = depth.to_u16(unit_m).iter().flat_map(|v| v.to_be_bytes()).collect();
+    let bytes: Vec<u8> = depth
+        .to_u16(unit_m)
+        .iter()
+        .flat_map(|v| v.to_be_bytes())
+        .collect();
     writer.write_image_data(&bytes)?;
     writer.finish()?;
     Ok(())

@@ -27,7 +27,7 @@ mod tsdf;
 pub use config::FusionConfig;
 pub use depth_png::{load_depth_png, save_depth_png, DepthPngError};
 pub use plane::{
-    fit_support_plane, workspace_camera_from_plane, Plane, PlaneFitConfig, PlacementConfig,
+    fit_support_plane, workspace_camera_from_plane, PlacementConfig, Plane, PlaneFitConfig,
 };
 pub use tsdf::{fuse_into, fuse_normal_grid, IntegrationStats, TsdfVolume};
 
@@ -135,7 +135,11 @@ impl NormalGridView<'_> {
     #[inline]
     pub fn normal(&self, idx: usize) -> [f32; 3] {
         let n = self.workspace.voxel_count();
-        [self.normals[idx], self.normals[n + idx], self.normals[2 * n + idx]]
+        [
+            self.normals[idx],
+            self.normals[n + idx],
+            self.normals[2 * n + idx],
+        ]
     }
 
     /// Copies into an owned grid.
@@ -157,6 +161,8 @@ impl NormalGridView<'_> {
 
     /// Number of voxels that carry a normal.
     pub fn band_voxel_count(&self) -> usize {
-        (0..self.workspace.voxel_count()).filter(|&i| self.in_band(i)).count()
+        (0..self.workspace.voxel_count())
+            .filter(|&i| self.in_band(i))
+            .count()
     }
 }

@@ -37,7 +37,11 @@ impl NormalScratch {
     pub(crate) fn with_capacity(ws: &Workspace) -> Self {
         let n = ws.voxel_count();
         let cols = ws.dims[0] as usize * ws.dims[1] as usize;
-        Self { field: vec![[0.0; 4]; n], ranges: vec![[1, 0]; cols], smoothed: vec![[0.0; 3]; n] }
+        Self {
+            field: vec![[0.0; 4]; n],
+            ranges: vec![[1, 0]; cols],
+            smoothed: vec![[0.0; 3]; n],
+        }
     }
 }
 
@@ -69,14 +73,33 @@ pub(crate) fn extract(
     scratch.field.resize(n, [0.0; 4]);
     scratch.ranges.resize(nx * ny, [1, 0]);
     band_ranges(dims, tsdf, &mut scratch.ranges);
-    build_field(dims, trunc, tsdf, weight, &scratch.ranges, &mut scratch.field);
+    build_field(
+        dims,
+        trunc,
+        tsdf,
+        weight,
+        &scratch.ranges,
+        &mut scratch.field,
+    );
     if config.smooth_gradients {
         scratch.smoothed.resize(n, [0.0; 3]);
         for axis in [2, 1, 0] {
-            smooth_gradients(dims, axis, tsdf, weight, &scratch.ranges, &mut scratch.field, &mut scratch.smoothed);
+            smooth_gradients(
+                dims,
+                axis,
+                tsdf,
+                weight,
+                &scratch.ranges,
+                &mut scratch.field,
+                &mut scratch.smoothed,
+            );
         }
     }
-    let field = Field { dims, samples: &scratch.field, ranges: &scratch.ranges };
+    let field = Field {
+        dims,
+        samples: &scratch.field,
+        ranges: &scratch.ranges,
+    };
 
     normals_out.fill(0.0);
     let (nx_out, rest) = normals_out.split_at_mut(n);
@@ -116,7 +139,10 @@ fn band_ranges(dims: [usize; 3], tsdf: &[f32], ranges: &mut [[u16; 2]]) {
     let nz = dims[2];
     for (c, range) in ranges.iter_mut().enumerate() {
         let col = &tsdf[c * nz..(c + 1) * nz];
-        *range = match (col.iter().position(|t| in_band(*t)), col.iter().rposition(|t| in_band(*t))) {
+        *range = match (
+            col.iter().position(|t| in_band(*t)),
+            col.iter().rposition(|t| in_band(*t)),
+        ) {
             (Some(lo), Some(hi)) => [lo.saturating_sub(1) as u16, (hi + 1).min(nz - 1) as u16],
             _ => [1, 0],
         };
@@ -152,10 +178,26 @@ fn build_field(
         for j in 0..ny {
             let [lo, hi] = ranges[i * ny + j];
             let col = (i * ny + j) * nz;
-            let (xm, xm_in) = if i > 0 { (col - sx, true) } else { (col, false) };
-            let (xp, xp_in) = if i + 1 < nx { (col + sx, true) } else { (col, false) };
-            let (ym, ym_in) = if j > 0 { (col - nz, true) } else { (col, false) };
-            let (yp, yp_in) = if j + 1 < ny { (col + nz, true) } else { (col, false) };
+            let (xm, xm_in) = if i > 0 {
+                (col - sx, true)
+            } else {
+                (col, false)
+            };
+            let (xp, xp_in) = if i + 1 < nx {
+                (col + sx, true)
+            } else {
+                (col, false)
+            };
+            let (ym, ym_in) = if j > 0 {
+                (col - nz, true)
+            } else {
+                (col, false)
+            };
+            let (yp, yp_in) = if j + 1 < ny {
+                (col + nz, true)
+            } else {
+                (col, false)
+            };
             for k in lo as usize..=hi as usize {
                 let idx = col + k;
                 let f0 = v(idx);

@@ -1,7 +1,9 @@
 //! Finding the support plane (table or bin floor) in a frame and placing the workspace on it.
 use crate::FusionError;
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use psgrasp_geometry::{depth::is_valid_depth, CameraIntrinsics, CameraModel, DepthImage, Workspace};
+use psgrasp_geometry::{
+    depth::is_valid_depth, CameraIntrinsics, CameraModel, DepthImage, Workspace,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -57,7 +59,9 @@ impl PlaneFitConfig {
             && self.min_depth_m >= 0.0
             && self.max_depth_m > self.min_depth_m)
         {
-            return Err(FusionError::InvalidConfig("need 0 <= min_depth_m < max_depth_m"));
+            return Err(FusionError::InvalidConfig(
+                "need 0 <= min_depth_m < max_depth_m",
+            ));
         }
         if self.iterations == 0 {
             return Err(FusionError::InvalidConfig("iterations must be > 0"));
@@ -71,8 +75,12 @@ impl PlaneFitConfig {
         if self.min_inliers < 3 {
             return Err(FusionError::InvalidConfig("min_inliers must be >= 3"));
         }
-        if !(self.min_inlier_fraction.is_finite() && (0.0..=1.0).contains(&self.min_inlier_fraction)) {
-            return Err(FusionError::InvalidConfig("min_inlier_fraction must be in [0, 1]"));
+        if !(self.min_inlier_fraction.is_finite()
+            && (0.0..=1.0).contains(&self.min_inlier_fraction))
+        {
+            return Err(FusionError::InvalidConfig(
+                "min_inlier_fraction must be in [0, 1]",
+            ));
         }
         Ok(())
     }
@@ -151,13 +159,18 @@ pub fn fit_support_plane(
         }
     }
     if points.len() < config.min_inliers.max(3) {
-        return Err(FusionError::TooFewPoints { got: points.len(), needed: config.min_inliers.max(3) });
+        return Err(FusionError::TooFewPoints {
+            got: points.len(),
+            needed: config.min_inliers.max(3),
+        });
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let score_set: Vec<Vector3<f32>> = if points.len() <= config.max_score_points {
         points.clone()
     } else {
-        (0..config.max_score_points).map(|_| points[rng.random_range(0..points.len())]).collect()
+        (0..config.max_score_points)
+            .map(|_| points[rng.random_range(0..points.len())])
+            .collect()
     };
     let thr = config.inlier_threshold_m;
     let mut best: Option<(usize, Vector3<f32>, f32)> = None;
@@ -168,23 +181,31 @@ pub fn fit_support_plane(
         let n = (b - a).cross(&(c - a));
         let len = n.norm();
         // Skip (near-)collinear samples: the cross product of 1 cm edges is ~1e-4 m².
-        if !(len > 1e-7) {
+        if len.is_nan() || len <= 1e-7 {
             continue;
         }
         let n = n / len;
         let off = -n.dot(&a);
-        let count = score_set.iter().filter(|p| (n.dot(p) + off).abs() < thr).count();
+        let count = score_set
+            .iter()
+            .filter(|p| (n.dot(p) + off).abs() < thr)
+            .count();
         if best.is_none_or(|(bc, _, _)| count > bc) {
             best = Some((count, n, off));
         }
     }
     let Some((_, mut normal, mut offset)) = best else {
-        return Err(FusionError::PlaneNotFound { inliers: 0, points: points.len() });
+        return Err(FusionError::PlaneNotFound {
+            inliers: 0,
+            points: points.len(),
+        });
     };
     let mut inliers = 0;
     let mut rms = 0.0;
     for _ in 0..config.refine_rounds.max(1) {
-        let Some((n, off)) = refine(&points, normal, offset, thr) else { break };
+        let Some((n, off)) = refine(&points, normal, offset, thr) else {
+            break;
+        };
         normal = n;
         offset = off;
         (inliers, rms) = support(&points, normal, offset, thr);
@@ -195,16 +216,27 @@ pub fn fit_support_plane(
     if inliers < config.min_inliers
         || (inliers as f32) < config.min_inlier_fraction * points.len() as f32
     {
-        return Err(FusionError::PlaneNotFound { inliers, points: points.len() });
+        return Err(FusionError::PlaneNotFound {
+            inliers,
+            points: points.len(),
+        });
     }
     if offset.abs() < 1e-6 {
-        return Err(FusionError::BadPlane("plane passes through the camera centre"));
+        return Err(FusionError::BadPlane(
+            "plane passes through the camera centre",
+        ));
     }
     if offset < 0.0 {
         normal = -normal;
         offset = -offset;
     }
-    Ok(Plane { normal, offset_m: offset, inlier_count: inliers, point_count: points.len(), rms_m: rms })
+    Ok(Plane {
+        normal,
+        offset_m: offset,
+        inlier_count: inliers,
+        point_count: points.len(),
+        rms_m: rms,
+    })
 }
 
 /// Inlier count and RMS distance of the inliers.
@@ -218,12 +250,21 @@ fn support(points: &[Vector3<f32>], n: Vector3<f32>, off: f32, thr: f32) -> (usi
             sq += (d * d) as f64;
         }
     }
-    let rms = if count > 0 { (sq / count as f64).sqrt() as f32 } else { 0.0 };
+    let rms = if count > 0 {
+        (sq / count as f64).sqrt() as f32
+    } else {
+        0.0
+    };
     (count, rms)
 }
 
 /// Least-squares plane through the inliers of (n, off): the smallest principal axis.
-fn refine(points: &[Vector3<f32>], n: Vector3<f32>, off: f32, thr: f32) -> Option<(Vector3<f32>, f32)> {
+fn refine(
+    points: &[Vector3<f32>],
+    n: Vector3<f32>,
+    off: f32,
+    thr: f32,
+) -> Option<(Vector3<f32>, f32)> {
     let mut sum = nalgebra::Vector3::<f64>::zeros();
     let mut count = 0usize;
     for p in points.iter().filter(|p| (n.dot(p) + off).abs() < thr) {
@@ -240,7 +281,11 @@ fn refine(points: &[Vector3<f32>], n: Vector3<f32>, off: f32, thr: f32) -> Optio
         cov += d * d.transpose();
     }
     let eig = cov.symmetric_eigen();
-    let (imin, _) = eig.eigenvalues.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1))?;
+    let (imin, _) = eig
+        .eigenvalues
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))?;
     let mut normal = eig.eigenvectors.column(imin).into_owned();
     if normal.dot(&n.cast::<f64>()) < 0.0 {
         normal = -normal;
@@ -263,7 +308,9 @@ pub struct PlacementConfig {
 
 impl Default for PlacementConfig {
     fn default() -> Self {
-        Self { plane_height_m: 0.02 }
+        Self {
+            plane_height_m: 0.02,
+        }
     }
 }
 
@@ -294,7 +341,9 @@ pub fn workspace_camera_from_plane(
     }
     // Optical axis (0, 0, s): z_w.z · s + offset = 0.
     if z_w.z > -1e-3 {
-        return Err(FusionError::BadPlane("the optical axis does not meet the plane in front of the camera"));
+        return Err(FusionError::BadPlane(
+            "the optical axis does not meet the plane in front of the camera",
+        ));
     }
     let centre = Vector3::new(0.0, 0.0, -offset / z_w.z);
     let mut x_w = Vector3::x() - z_w * z_w.x;
@@ -304,12 +353,16 @@ pub fn workspace_camera_from_plane(
     let x_w = x_w.normalize();
     let y_w = z_w.cross(&x_w);
     let ext = workspace.extent();
-    let origin = centre - x_w * (0.5 * ext.x) - y_w * (0.5 * ext.y) - z_w * placement.plane_height_m;
+    let origin =
+        centre - x_w * (0.5 * ext.x) - y_w * (0.5 * ext.y) - z_w * placement.plane_height_m;
     let camera_from_workspace = Matrix3::from_columns(&[x_w, y_w, z_w]);
     let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
         camera_from_workspace.transpose(),
     ));
     let translation = -(rotation * origin);
     let workspace_from_camera = Isometry3::from_parts(Translation3::from(translation), rotation);
-    Ok(CameraModel { intrinsics: *intrinsics, workspace_from_camera })
+    Ok(CameraModel {
+        intrinsics: *intrinsics,
+        workspace_from_camera,
+    })
 }

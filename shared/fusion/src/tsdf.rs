@@ -1,7 +1,9 @@
 //! The projective TSDF volume and its integration loop.
 use crate::normals::{self, NormalScratch};
 use crate::{FusionConfig, FusionError, NormalGrid};
-use psgrasp_geometry::{depth::is_valid_depth, CameraIntrinsics, CameraModel, DepthError, DepthImage, Workspace};
+use psgrasp_geometry::{
+    depth::is_valid_depth, CameraIntrinsics, CameraModel, DepthError, DepthImage, Workspace,
+};
 use std::sync::Mutex;
 
 /// Voxels of a column projected per batch in the integration loop.
@@ -208,7 +210,9 @@ impl TsdfVolume {
             }
             let (u, v) = ((idx % w) as f32, (idx / w) as f32);
             let p = iso * k.deproject(u, v, d);
-            (0.0..ext.x).contains(&p.x) && (0.0..ext.y).contains(&p.y) && (0.0..ext.z).contains(&p.z)
+            (0.0..ext.x).contains(&p.x)
+                && (0.0..ext.y).contains(&p.y)
+                && (0.0..ext.z).contains(&p.z)
         };
         let n = depth.data.len();
         (0..n).step_by(61).any(inside) || (0..n).any(inside)
@@ -223,7 +227,10 @@ impl TsdfVolume {
     ) {
         let k = camera.intrinsics;
         let camera_from_workspace = camera.workspace_from_camera.inverse();
-        let r = camera_from_workspace.rotation.to_rotation_matrix().into_inner();
+        let r = camera_from_workspace
+            .rotation
+            .to_rotation_matrix()
+            .into_inner();
         let t = camera_from_workspace.translation.vector;
         let s = self.workspace.voxel_size_m;
         let [nx, ny, nz] = self.workspace.dims.map(|d| d as usize);
@@ -299,7 +306,12 @@ impl TsdfVolume {
                         }
                         let [fu, fv] = frac[kk];
                         let corners = [p, p + sx, p + sy, p + sx + sy];
-                        let wts = [(1.0 - fu) * (1.0 - fv), fu * (1.0 - fv), (1.0 - fu) * fv, fu * fv];
+                        let wts = [
+                            (1.0 - fu) * (1.0 - fv),
+                            fu * (1.0 - fv),
+                            (1.0 - fu) * fv,
+                            fu * fv,
+                        ];
                         let ds = corners.map(|c| depth[c]);
                         let all_ok = ds.iter().all(|&d| in_range(d, lo, hi));
                         let d = if bilinear
@@ -365,7 +377,12 @@ impl TsdfVolume {
         let mut normals = vec![0.0; 3 * n];
         let mut tsdf = vec![0.0; n];
         self.extract(&mut normals, &mut tsdf);
-        NormalGrid { workspace: self.workspace, normals, tsdf, truncation_m: self.truncation_m() }
+        NormalGrid {
+            workspace: self.workspace,
+            normals,
+            tsdf,
+            truncation_m: self.truncation_m(),
+        }
     }
 
     /// Writes the normal grid straight into caller buffers (e.g. a shared-memory loan), without
@@ -405,10 +422,18 @@ fn in_range(d: f32, lo: f32, hi: f32) -> bool {
 fn check_buffers(ws: &Workspace, normals: &[f32], tsdf: &[f32]) -> Result<(), FusionError> {
     let n = ws.voxel_count();
     if normals.len() != 3 * n {
-        return Err(FusionError::BufferSize { name: "normals", got: normals.len(), expected: 3 * n });
+        return Err(FusionError::BufferSize {
+            name: "normals",
+            got: normals.len(),
+            expected: 3 * n,
+        });
     }
     if tsdf.len() != n {
-        return Err(FusionError::BufferSize { name: "tsdf", got: tsdf.len(), expected: n });
+        return Err(FusionError::BufferSize {
+            name: "tsdf",
+            got: tsdf.len(),
+            expected: n,
+        });
     }
     Ok(())
 }

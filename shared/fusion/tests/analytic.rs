@@ -36,19 +36,39 @@ fn check_scene(name: &str, scene: &Scene, cameras: &[CameraModel]) -> (NormalGri
     );
     assert!(cols > 1000, "{name}: only {cols} columns checked");
     assert_eq!(missing, 0, "{name}: columns without a zero crossing");
-    assert!(max_err < 0.5 * 0.009, "{name}: zero crossing off by {:.2} mm", max_err * 1e3);
-    assert!(report.evaluated as f32 >= 0.75 * report.band as f32, "{name}: too much excluded: {report:?}");
-    assert!(report.fraction_within() >= 0.95, "{name}: only {:.3} within 5°", report.fraction_within());
-    assert_eq!(report.zero_normals, 0, "{name}: band voxels without a normal");
+    assert!(
+        max_err < 0.5 * 0.009,
+        "{name}: zero crossing off by {:.2} mm",
+        max_err * 1e3
+    );
+    assert!(
+        report.evaluated as f32 >= 0.75 * report.band as f32,
+        "{name}: too much excluded: {report:?}"
+    );
+    assert!(
+        report.fraction_within() >= 0.95,
+        "{name}: only {:.3} within 5°",
+        report.fraction_within()
+    );
+    assert_eq!(
+        report.zero_normals, 0,
+        "{name}: band voxels without a normal"
+    );
     (grid, report)
 }
 
 #[test]
 fn floor_seen_top_down() {
-    let scene = Scene { shapes: vec![floor()] };
+    let scene = Scene {
+        shapes: vec![floor()],
+    };
     let (grid, report) = check_scene("floor", &scene, &[top_camera()]);
     // A plane is represented exactly: every band voxel points straight up.
-    assert!(report.percentile(1.0) < 0.5, "worst {:.3}°", report.percentile(1.0));
+    assert!(
+        report.percentile(1.0) < 0.5,
+        "worst {:.3}°",
+        report.percentile(1.0)
+    );
     // The band is 2 × 4 voxels thick around z = 0.1 m over the whole seen floor.
     let ws = grid.workspace;
     let floor_k = FLOOR_Z / ws.voxel_size_m;
@@ -65,26 +85,38 @@ fn floor_seen_top_down() {
 fn tilted_plane() {
     let n = Vector3::new(0.3, -0.2, 1.0).normalize();
     let d = n.dot(&Vector3::new(0.288, 0.288, 0.2));
-    let scene = Scene { shapes: vec![Shape::Plane { n, d }] };
+    let scene = Scene {
+        shapes: vec![Shape::Plane { n, d }],
+    };
     let (_, report) = check_scene("tilted plane", &scene, &[top_camera()]);
-    assert!(report.percentile(0.99) < 2.0, "p99 {:.3}°", report.percentile(0.99));
+    assert!(
+        report.percentile(0.99) < 2.0,
+        "p99 {:.3}°",
+        report.percentile(0.99)
+    );
 }
 
 #[test]
 fn sphere_on_floor() {
-    let scene = Scene { shapes: vec![floor(), sphere()] };
+    let scene = Scene {
+        shapes: vec![floor(), sphere()],
+    };
     check_scene("sphere", &scene, &[top_camera()]);
 }
 
 #[test]
 fn box_on_floor() {
-    let scene = Scene { shapes: vec![floor(), cuboid()] };
+    let scene = Scene {
+        shapes: vec![floor(), cuboid()],
+    };
     check_scene("box", &scene, &[top_camera()]);
 }
 
 #[test]
 fn two_views_fuse_at_least_as_accurately() {
-    let scene = Scene { shapes: vec![floor(), sphere(), cuboid()] };
+    let scene = Scene {
+        shapes: vec![floor(), sphere(), cuboid()],
+    };
     let top = [top_camera()];
     let both = [top_camera(), side_camera()];
     let (g1, r1) = check_scene("clutter, 1 view", &scene, &top);
@@ -101,7 +133,9 @@ fn two_views_fuse_at_least_as_accurately() {
             continue;
         }
         let [i, j, k] = ws.unindex(idx);
-        let Some(t) = scene.truth(&top, &ws.voxel_center(i, j, k), MARGIN) else { continue };
+        let Some(t) = scene.truth(&top, &ws.voxel_center(i, j, k), MARGIN) else {
+            continue;
+        };
         let e = |v: &psgrasp_fusion::NormalGridView<'_>| {
             let a = v.normal(idx);
             angle_deg(&Vector3::new(a[0], a[1], a[2]), &t.normal)
@@ -114,7 +148,11 @@ fn two_views_fuse_at_least_as_accurately() {
         sum2 += e2 as f64;
     }
     let (f1, f2) = (ok1 as f64 / n as f64, ok2 as f64 / n as f64);
-    println!("common voxels {n}: within 5° {f1:.4} → {f2:.4}, mean error {:.3}° → {:.3}°", sum1 / n as f64, sum2 / n as f64);
+    println!(
+        "common voxels {n}: within 5° {f1:.4} → {f2:.4}, mean error {:.3}° → {:.3}°",
+        sum1 / n as f64,
+        sum2 / n as f64
+    );
     assert!(n > 20_000);
     assert!(f2 >= f1 - 0.002, "fused {f2:.4} < single {f1:.4}");
     assert!(sum2 <= sum1 * 1.05, "mean error grew: {sum1} → {sum2}");

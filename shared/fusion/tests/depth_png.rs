@@ -29,8 +29,14 @@ fn round_trip_millimetres() {
 
 #[test]
 fn errors() {
-    assert!(matches!(load_depth_png(temp("missing.png"), 0.001), Err(DepthPngError::Io { .. })));
-    assert!(matches!(load_depth_png(temp("missing.png"), 0.0), Err(DepthPngError::Depth(DepthError::BadUnit(_)))));
+    assert!(matches!(
+        load_depth_png(temp("missing.png"), 0.001),
+        Err(DepthPngError::Io { .. })
+    ));
+    assert!(matches!(
+        load_depth_png(temp("missing.png"), 0.0),
+        Err(DepthPngError::Depth(DepthError::BadUnit(_)))
+    ));
     // An 8-bit PNG is not a depth frame.
     let path = temp("rgb8.png");
     {
@@ -38,16 +44,32 @@ fn errors() {
         let mut enc = png::Encoder::new(std::io::BufWriter::new(file), 2, 2);
         enc.set_color(png::ColorType::Grayscale);
         enc.set_depth(png::BitDepth::Eight);
-        enc.write_header().unwrap().write_image_data(&[1, 2, 3, 4]).unwrap();
+        enc.write_header()
+            .unwrap()
+            .write_image_data(&[1, 2, 3, 4])
+            .unwrap();
     }
     let err = load_depth_png(&path, 0.001).unwrap_err();
     std::fs::remove_file(&path).ok();
-    assert!(matches!(err, DepthPngError::UnsupportedFormat { .. }), "{err}");
+    assert!(
+        matches!(err, DepthPngError::UnsupportedFormat { .. }),
+        "{err}"
+    );
     // Garbage bytes.
     let path = temp("garbage.png");
     std::fs::write(&path, b"not a png").unwrap();
-    assert!(matches!(load_depth_png(&path, 0.001), Err(DepthPngError::Decode(_))));
+    assert!(matches!(
+        load_depth_png(&path, 0.001),
+        Err(DepthPngError::Decode(_))
+    ));
     std::fs::remove_file(&path).ok();
-    let broken = DepthImage { width: 3, height: 3, data: vec![1.0; 4] };
-    assert!(matches!(save_depth_png(temp("x.png"), &broken, 0.001), Err(DepthPngError::Depth(_))));
+    let broken = DepthImage {
+        width: 3,
+        height: 3,
+        data: vec![1.0; 4],
+    };
+    assert!(matches!(
+        save_depth_png(temp("x.png"), &broken, 0.001),
+        Err(DepthPngError::Depth(_))
+    ));
 }

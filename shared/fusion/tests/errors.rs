@@ -15,7 +15,9 @@ fn frame(value: f32) -> DepthImage {
 }
 
 fn untouched(vol: &TsdfVolume) -> bool {
-    vol.tsdf().iter().all(|&t| t == 1.0) && vol.weights().iter().all(|&w| w == 0.0) && vol.frames_integrated() == 0
+    vol.tsdf().iter().all(|&t| t == 1.0)
+        && vol.weights().iter().all(|&w| w == 0.0)
+        && vol.frames_integrated() == 0
 }
 
 #[test]
@@ -23,7 +25,11 @@ fn nan_or_zero_or_negative_everywhere_is_no_valid_pixels() {
     for v in [f32::NAN, 0.0, -1.0, f32::INFINITY] {
         let mut vol = volume();
         let err = vol.integrate(&frame(v), &top_camera()).unwrap_err();
-        assert_eq!(err, FusionError::Depth(DepthError::NoValidPixels), "value {v}");
+        assert_eq!(
+            err,
+            FusionError::Depth(DepthError::NoValidPixels),
+            "value {v}"
+        );
         assert!(untouched(&vol));
     }
 }
@@ -33,9 +39,21 @@ fn wrong_frame_size() {
     let mut vol = volume();
     let depth = DepthImage::from_metres(320, 240, vec![0.8; 320 * 240]).unwrap();
     let err = vol.integrate(&depth, &top_camera()).unwrap_err();
-    assert_eq!(err, FusionError::FrameSizeMismatch { got_w: 320, got_h: 240, want_w: 640, want_h: 480 });
+    assert_eq!(
+        err,
+        FusionError::FrameSizeMismatch {
+            got_w: 320,
+            got_h: 240,
+            want_w: 640,
+            want_h: 480
+        }
+    );
     // A hand-built image whose buffer disagrees with its size.
-    let broken = DepthImage { width: 640, height: 480, data: vec![0.8; 10] };
+    let broken = DepthImage {
+        width: 640,
+        height: 480,
+        data: vec![0.8; 10],
+    };
     assert!(matches!(
         vol.integrate(&broken, &top_camera()),
         Err(FusionError::Depth(DepthError::SizeMismatch { got: 10, .. }))
@@ -54,7 +72,10 @@ fn bad_intrinsics_and_pose() {
     ));
     let mut cam = top_camera();
     cam.intrinsics.fy = -5.0;
-    assert!(matches!(vol.integrate(&frame(0.8), &cam), Err(FusionError::Geometry(_))));
+    assert!(matches!(
+        vol.integrate(&frame(0.8), &cam),
+        Err(FusionError::Geometry(_))
+    ));
     let mut cam = top_camera();
     cam.workspace_from_camera.translation.vector.x = f32::NAN;
     assert!(matches!(
@@ -79,15 +100,23 @@ fn nothing_inside_the_workspace_is_empty_view() {
     let high = top_camera();
     let mut cam = high;
     cam.workspace_from_camera.translation.vector.z = 2.0;
-    assert_eq!(vol.integrate(&frame(0.2), &cam), Err(FusionError::EmptyView));
+    assert_eq!(
+        vol.integrate(&frame(0.2), &cam),
+        Err(FusionError::EmptyView)
+    );
     // All readings beyond the configured range.
-    assert_eq!(vol.integrate(&frame(5.0), &top_camera()), Err(FusionError::EmptyView));
+    assert_eq!(
+        vol.integrate(&frame(5.0), &top_camera()),
+        Err(FusionError::EmptyView)
+    );
     assert!(untouched(&vol));
 }
 
 #[test]
 fn invalid_pixels_are_skipped_and_counted() {
-    let scene = Scene { shapes: vec![floor()] };
+    let scene = Scene {
+        shapes: vec![floor()],
+    };
     let cam = top_camera();
     let mut depth = scene.render(&cam);
     let (mut nan, mut invalid, mut far) = (0, 0, 0);
@@ -118,7 +147,10 @@ fn invalid_pixels_are_skipped_and_counted() {
     // A voxel whose four pixels are all holes stays unobserved (+1), which can hide the
     // crossing of its column; everywhere else the surface is where it was.
     let (cols, missing, max_err, _) = zero_crossing_errors(&grid, &scene, &[cam], 0.0135);
-    assert!(cols > 4000 && missing * 50 < cols, "{missing} of {cols} columns without a crossing");
+    assert!(
+        cols > 4000 && missing * 50 < cols,
+        "{missing} of {cols} columns without a crossing"
+    );
     assert!(max_err < 0.0045, "max error {max_err}");
 }
 
@@ -129,28 +161,70 @@ fn bad_buffers_and_config() {
     let (mut normals, mut tsdf) = (vec![0.0; 3 * n - 1], vec![0.0; n]);
     assert_eq!(
         vol.write_normal_grid(&mut normals, &mut tsdf),
-        Err(FusionError::BufferSize { name: "normals", got: 3 * n - 1, expected: 3 * n })
+        Err(FusionError::BufferSize {
+            name: "normals",
+            got: 3 * n - 1,
+            expected: 3 * n
+        })
     );
     let (mut normals, mut tsdf) = (vec![0.0; 3 * n], vec![0.0; n + 1]);
-    assert!(matches!(vol.write_normal_grid(&mut normals, &mut tsdf), Err(FusionError::BufferSize { name: "tsdf", .. })));
+    assert!(matches!(
+        vol.write_normal_grid(&mut normals, &mut tsdf),
+        Err(FusionError::BufferSize { name: "tsdf", .. })
+    ));
     let cfg = FusionConfig::default();
     assert!(matches!(
-        fuse_into(&frame(0.8), &top_camera(), &workspace(), &cfg, &mut normals, &mut tsdf),
+        fuse_into(
+            &frame(0.8),
+            &top_camera(),
+            &workspace(),
+            &cfg,
+            &mut normals,
+            &mut tsdf
+        ),
         Err(FusionError::BufferSize { .. })
     ));
     for bad in [
-        FusionConfig { truncation_voxels: 0.0, ..cfg },
-        FusionConfig { truncation_voxels: f32::NAN, ..cfg },
-        FusionConfig { min_depth_m: 2.0, max_depth_m: 1.0, ..cfg },
-        FusionConfig { max_weight: 0.5, ..cfg },
-        FusionConfig { free_space_weight: 0.0, ..cfg },
-        FusionConfig { min_gradient: -1.0, ..cfg },
+        FusionConfig {
+            truncation_voxels: 0.0,
+            ..cfg
+        },
+        FusionConfig {
+            truncation_voxels: f32::NAN,
+            ..cfg
+        },
+        FusionConfig {
+            min_depth_m: 2.0,
+            max_depth_m: 1.0,
+            ..cfg
+        },
+        FusionConfig {
+            max_weight: 0.5,
+            ..cfg
+        },
+        FusionConfig {
+            free_space_weight: 0.0,
+            ..cfg
+        },
+        FusionConfig {
+            min_gradient: -1.0,
+            ..cfg
+        },
     ] {
-        assert!(matches!(TsdfVolume::new(workspace(), &bad), Err(FusionError::InvalidConfig(_))), "{bad:?}");
+        assert!(
+            matches!(
+                TsdfVolume::new(workspace(), &bad),
+                Err(FusionError::InvalidConfig(_))
+            ),
+            "{bad:?}"
+        );
     }
     let mut ws = workspace();
     ws.voxel_size_m = 0.0;
-    assert!(matches!(TsdfVolume::new(ws, &cfg), Err(FusionError::Geometry(_))));
+    assert!(matches!(
+        TsdfVolume::new(ws, &cfg),
+        Err(FusionError::Geometry(_))
+    ));
     assert!(fuse_normal_grid(&frame(f32::NAN), &top_camera(), &workspace(), &cfg).is_err());
 }
 
@@ -160,5 +234,8 @@ fn config_reads_from_toml_with_defaults() {
     assert_eq!(cfg.truncation_voxels, 3.0);
     assert_eq!(cfg.max_depth_m, 1.5);
     assert_eq!(cfg.min_depth_m, FusionConfig::default().min_depth_m);
-    assert!(toml::from_str::<FusionConfig>("truncation = 3.0").is_err(), "unknown keys are rejected");
+    assert!(
+        toml::from_str::<FusionConfig>("truncation = 3.0").is_err(),
+        "unknown keys are rejected"
+    );
 }

@@ -5,15 +5,20 @@ use common::*;
 use nalgebra::{Point3, Vector3};
 use psgrasp_fusion::{
     fit_support_plane, fuse_normal_grid, load_depth_png, workspace_camera_from_plane, FusionConfig,
-    FusionError, NormalGrid, Plane, PlaneFitConfig, PlacementConfig,
+    FusionError, NormalGrid, PlacementConfig, Plane, PlaneFitConfig,
 };
 use psgrasp_geometry::{CameraIntrinsics, CameraModel, DepthImage};
 
-const REAL: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/real/graspnet-realsense-example");
+const REAL: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../../shared/real/graspnet-realsense-example"
+);
 
 /// An oblique camera over a floor with a box on it.
 fn oblique_scene() -> (Scene, CameraModel) {
-    let scene = Scene { shapes: vec![floor(), cuboid()] };
+    let scene = Scene {
+        shapes: vec![floor(), cuboid()],
+    };
     let cam = look_at(
         CameraIntrinsics::default_640x480(),
         Point3::new(0.6, -0.1, FLOOR_Z + 0.6),
@@ -38,7 +43,8 @@ fn floor_normal_share(grid: &NormalGrid, h: f32, deg: f32) -> (f32, usize) {
             // the plane and nothing in the band above it.
             let plain = |i: usize, j: usize| {
                 (kh + 6..nz).all(|k| grid.tsdf[ws.index(i, j, k)] >= 1.0)
-                    && (kh.saturating_sub(1)..=kh + 1).any(|k| grid.tsdf[ws.index(i, j, k)].abs() < 0.3)
+                    && (kh.saturating_sub(1)..=kh + 1)
+                        .any(|k| grid.tsdf[ws.index(i, j, k)].abs() < 0.3)
             };
             if !(i - 2..=i + 2).all(|a| (j - 2..=j + 2).all(|b| plain(a, b))) {
                 continue;
@@ -67,11 +73,21 @@ fn plane_fit_on_an_analytic_frame_is_exact_and_seeded() {
     let plane = fit_support_plane(&depth, &cam.intrinsics, &cfg, 7).unwrap();
     let camera_from_workspace = cam.workspace_from_camera.inverse();
     let true_normal = camera_from_workspace.rotation * Vector3::z();
-    let true_offset = -true_normal.dot(&(camera_from_workspace * Point3::new(0.0, 0.0, FLOOR_Z)).coords);
+    let true_offset =
+        -true_normal.dot(&(camera_from_workspace * Point3::new(0.0, 0.0, FLOOR_Z)).coords);
     assert!(angle_deg(&plane.normal, &true_normal) < 0.2, "{plane:?}");
-    assert!((plane.offset_m - true_offset).abs() < 0.001, "{plane:?} vs {true_offset}");
-    assert!(plane.inlier_fraction() > 0.6 && plane.rms_m < 1e-3, "{plane:?}");
-    assert_eq!(plane, fit_support_plane(&depth, &cam.intrinsics, &cfg, 7).unwrap());
+    assert!(
+        (plane.offset_m - true_offset).abs() < 0.001,
+        "{plane:?} vs {true_offset}"
+    );
+    assert!(
+        plane.inlier_fraction() > 0.6 && plane.rms_m < 1e-3,
+        "{plane:?}"
+    );
+    assert_eq!(
+        plane,
+        fit_support_plane(&depth, &cam.intrinsics, &cfg, 7).unwrap()
+    );
     // Another seed finds the same plane.
     let other = fit_support_plane(&depth, &cam.intrinsics, &cfg, 8).unwrap();
     assert!(angle_deg(&other.normal, &plane.normal) < 0.05);
@@ -90,9 +106,13 @@ fn workspace_placed_on_the_plane_sees_a_flat_floor() {
     let p_ws = placed.workspace_from_camera * p_cam;
     assert!((p_ws.z - placement.plane_height_m).abs() < 2e-3, "{p_ws}");
     // The optical axis meets the plane at the centre of the box footprint.
-    let centre = placed.workspace_from_camera * Point3::new(0.0, 0.0, plane.offset_m / -plane.normal.z);
+    let centre =
+        placed.workspace_from_camera * Point3::new(0.0, 0.0, plane.offset_m / -plane.normal.z);
     let ext = ws.extent();
-    assert!((centre.x - ext.x / 2.0).abs() < 1e-3 && (centre.y - ext.y / 2.0).abs() < 1e-3, "{centre}");
+    assert!(
+        (centre.x - ext.x / 2.0).abs() < 1e-3 && (centre.y - ext.y / 2.0).abs() < 1e-3,
+        "{centre}"
+    );
     // The camera is above the plane.
     assert!(placed.eye().z > 0.3);
     let grid = fuse_normal_grid(&depth, &placed, &ws, &FusionConfig::default()).unwrap();
@@ -108,28 +128,62 @@ fn plane_fit_errors() {
     let mut data = vec![0.0; 640 * 480];
     data[1000] = 0.8;
     let sparse = DepthImage::from_metres(640, 480, data).unwrap();
-    assert!(matches!(fit_support_plane(&sparse, &k, &cfg, 0), Err(FusionError::TooFewPoints { .. })));
+    assert!(matches!(
+        fit_support_plane(&sparse, &k, &cfg, 0),
+        Err(FusionError::TooFewPoints { .. })
+    ));
     // A ball fills the view: no plane carries 20% of the points.
-    let ball = Scene { shapes: vec![Shape::Sphere { c: Point3::new(0.0, 0.0, 0.0), r: 0.6 }] };
-    let inside = look_at(k, Point3::new(0.0, 0.0, 0.0), Point3::new(0.0, 0.0, -1.0), Vector3::y());
+    let ball = Scene {
+        shapes: vec![Shape::Sphere {
+            c: Point3::new(0.0, 0.0, 0.0),
+            r: 0.6,
+        }],
+    };
+    let inside = look_at(
+        k,
+        Point3::new(0.0, 0.0, 0.0),
+        Point3::new(0.0, 0.0, -1.0),
+        Vector3::y(),
+    );
     assert!(matches!(
         fit_support_plane(&ball.render(&inside), &k, &cfg, 0),
         Err(FusionError::PlaneNotFound { .. })
     ));
     // Wrong size, no valid pixel, bad config.
     let small = DepthImage::from_metres(2, 2, vec![1.0; 4]).unwrap();
-    assert!(matches!(fit_support_plane(&small, &k, &cfg, 0), Err(FusionError::FrameSizeMismatch { .. })));
+    assert!(matches!(
+        fit_support_plane(&small, &k, &cfg, 0),
+        Err(FusionError::FrameSizeMismatch { .. })
+    ));
     let nan = DepthImage::from_metres(640, 480, vec![f32::NAN; 640 * 480]).unwrap();
-    assert!(matches!(fit_support_plane(&nan, &k, &cfg, 0), Err(FusionError::Depth(_))));
-    let bad = PlaneFitConfig { inlier_threshold_m: 0.0, ..cfg };
-    assert!(matches!(fit_support_plane(&nan, &k, &bad, 0), Err(FusionError::InvalidConfig(_))));
+    assert!(matches!(
+        fit_support_plane(&nan, &k, &cfg, 0),
+        Err(FusionError::Depth(_))
+    ));
+    let bad = PlaneFitConfig {
+        inlier_threshold_m: 0.0,
+        ..cfg
+    };
+    assert!(matches!(
+        fit_support_plane(&nan, &k, &bad, 0),
+        Err(FusionError::InvalidConfig(_))
+    ));
     // A plane the optical axis never meets cannot carry the workspace.
-    let wall = Plane { normal: Vector3::x(), offset_m: 0.5, inlier_count: 1, point_count: 1, rms_m: 0.0 };
+    let wall = Plane {
+        normal: Vector3::x(),
+        offset_m: 0.5,
+        inlier_count: 1,
+        point_count: 1,
+        rms_m: 0.0,
+    };
     assert!(matches!(
         workspace_camera_from_plane(&wall, &k, &workspace(), &PlacementConfig::default()),
         Err(FusionError::BadPlane(_))
     ));
-    let broken = Plane { normal: Vector3::new(f32::NAN, 0.0, -1.0), ..wall };
+    let broken = Plane {
+        normal: Vector3::new(f32::NAN, 0.0, -1.0),
+        ..wall
+    };
     assert!(matches!(
         workspace_camera_from_plane(&broken, &k, &workspace(), &PlacementConfig::default()),
         Err(FusionError::BadPlane(_))
@@ -174,5 +228,8 @@ fn real_realsense_frame() {
     assert!(band > 15_000, "only {band} band voxels");
     // Sensor noise (~2 mm rms on the table) and a slight bow of the real table against the
     // fitted plane (~3° mean tilt) leave a tail; most table voxels are within a few degrees.
-    assert!(total > 2000 && share5 > 0.7 && share10 > 0.85, "{share5}/{share10} of {total}");
+    assert!(
+        total > 2000 && share5 > 0.7 && share10 > 0.85,
+        "{share5}/{share10} of {total}"
+    );
 }

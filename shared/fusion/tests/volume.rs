@@ -6,7 +6,9 @@ use psgrasp_fusion::{fuse_into, fuse_normal_grid, FusionConfig, TsdfVolume};
 
 #[test]
 fn grid_invariants_and_one_shot_helpers_agree() {
-    let scene = Scene { shapes: vec![floor(), sphere(), cuboid()] };
+    let scene = Scene {
+        shapes: vec![floor(), sphere(), cuboid()],
+    };
     let cam = top_camera();
     let depth = scene.render(&cam);
     let ws = workspace();
@@ -23,7 +25,10 @@ fn grid_invariants_and_one_shot_helpers_agree() {
         let [x, y, z] = view.normal(idx);
         let len = (x * x + y * y + z * z).sqrt();
         if t.abs() < 1.0 {
-            assert!((len - 1.0).abs() < 1e-4, "band voxel {idx} has normal length {len}");
+            assert!(
+                (len - 1.0).abs() < 1e-4,
+                "band voxel {idx} has normal length {len}"
+            );
         } else {
             assert_eq!(len, 0.0, "voxel {idx} outside the band has a normal");
         }
@@ -31,7 +36,10 @@ fn grid_invariants_and_one_shot_helpers_agree() {
     // Deep below the floor is occluded (−1); high above the floor is free (+1).
     assert_eq!(grid.tsdf[ws.index(5, 5, 0)], -1.0);
     assert_eq!(grid.tsdf[ws.index(5, 5, 60)], 1.0);
-    assert_eq!(view.band_voxel_count(), grid.tsdf.iter().filter(|t| t.abs() < 1.0).count());
+    assert_eq!(
+        view.band_voxel_count(),
+        grid.tsdf.iter().filter(|t| t.abs() < 1.0).count()
+    );
 
     let (mut normals, mut tsdf) = (vec![f32::NAN; 3 * n], vec![f32::NAN; n]);
     let stats = fuse_into(&depth, &cam, &ws, &cfg, &mut normals, &mut tsdf).unwrap();
@@ -42,7 +50,9 @@ fn grid_invariants_and_one_shot_helpers_agree() {
 
 #[test]
 fn narrow_camera_leaves_unseen_voxels_unobserved() {
-    let scene = Scene { shapes: vec![floor()] };
+    let scene = Scene {
+        shapes: vec![floor()],
+    };
     let mut cam = top_camera();
     cam.intrinsics.fx = 3000.0;
     cam.intrinsics.fy = 3000.0;
@@ -61,7 +71,9 @@ fn narrow_camera_leaves_unseen_voxels_unobserved() {
 
 #[test]
 fn repeat_integration_reset_and_write_are_consistent() {
-    let scene = Scene { shapes: vec![floor(), sphere()] };
+    let scene = Scene {
+        shapes: vec![floor(), sphere()],
+    };
     let cam = top_camera();
     let depth = scene.render(&cam);
     let mut vol = TsdfVolume::new(workspace(), &FusionConfig::default()).unwrap();

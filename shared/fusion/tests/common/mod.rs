@@ -88,13 +88,23 @@ impl Shape {
         match *self {
             Shape::Plane { n, d } => {
                 let s = n.dot(&p.coords) - d;
-                Nearest { point: p - n * s, normal: n, distance: s.abs(), ambiguous: false }
+                Nearest {
+                    point: p - n * s,
+                    normal: n,
+                    distance: s.abs(),
+                    ambiguous: false,
+                }
             }
             Shape::Sphere { c, r } => {
                 let v = p - c;
                 let l = v.norm().max(1e-9);
                 let n = v / l;
-                Nearest { point: c + n * r, normal: n, distance: (l - r).abs(), ambiguous: l < 1e-3 }
+                Nearest {
+                    point: c + n * r,
+                    normal: n,
+                    distance: (l - r).abs(),
+                    ambiguous: l < 1e-3,
+                }
             }
             Shape::Cuboid { min, max } => {
                 let inside = (0..3).all(|a| p[a] >= min[a] && p[a] <= max[a]);
@@ -111,8 +121,14 @@ impl Shape {
                     q[a] = if sign > 0.0 { max[a] } else { min[a] };
                     let mut n = Vector3::zeros();
                     n[a] = sign;
-                    let ambiguous = faces[1].0 - dist < margin || near_edge(&q, &min, &max, a, margin);
-                    Nearest { point: q, normal: n, distance: dist, ambiguous }
+                    let ambiguous =
+                        faces[1].0 - dist < margin || near_edge(&q, &min, &max, a, margin);
+                    Nearest {
+                        point: q,
+                        normal: n,
+                        distance: dist,
+                        ambiguous,
+                    }
                 } else {
                     let mut q = *p;
                     let mut clamped = 0;
@@ -130,7 +146,12 @@ impl Shape {
                     }
                     let face_axis = (0..3).find(|&a| n[a] != 0.0).unwrap_or(0);
                     let ambiguous = clamped != 1 || near_edge(&q, &min, &max, face_axis, margin);
-                    Nearest { point: q, normal: n.normalize(), distance: (p - q).norm(), ambiguous }
+                    Nearest {
+                        point: q,
+                        normal: n.normalize(),
+                        distance: (p - q).norm(),
+                        ambiguous,
+                    }
                 }
             }
         }
@@ -138,8 +159,16 @@ impl Shape {
 }
 
 /// True if face point `q` (on the face normal to `axis`) is within `margin` of the face border.
-fn near_edge(q: &Point3<f32>, min: &Point3<f32>, max: &Point3<f32>, axis: usize, margin: f32) -> bool {
-    (0..3).filter(|&a| a != axis).any(|a| q[a] - min[a] < margin || max[a] - q[a] < margin)
+fn near_edge(
+    q: &Point3<f32>,
+    min: &Point3<f32>,
+    max: &Point3<f32>,
+    axis: usize,
+    margin: f32,
+) -> bool {
+    (0..3)
+        .filter(|&a| a != axis)
+        .any(|a| q[a] - min[a] < margin || max[a] - q[a] < margin)
 }
 
 /// A scene of analytic shapes.
@@ -176,7 +205,13 @@ impl Scene {
     }
 
     /// Is the surface point `q` (of shape `shape`) seen by the camera, not at a grazing angle?
-    pub fn visible(&self, camera: &CameraModel, q: &Point3<f32>, normal: &Vector3<f32>, shape: usize) -> bool {
+    pub fn visible(
+        &self,
+        camera: &CameraModel,
+        q: &Point3<f32>,
+        normal: &Vector3<f32>,
+        shape: usize,
+    ) -> bool {
         let eye = camera.eye();
         let to_q = q - eye;
         let dist = to_q.norm();
@@ -188,7 +223,8 @@ impl Scene {
         let qc = camera.workspace_from_camera.inverse() * q;
         match camera.intrinsics.project(&qc) {
             Some((u, v))
-                if u >= 0.5 && v >= 0.5
+                if u >= 0.5
+                    && v >= 0.5
                     && u < camera.intrinsics.width as f32 - 1.5
                     && v < camera.intrinsics.height as f32 - 1.5 => {}
             _ => return false,
@@ -203,8 +239,12 @@ impl Scene {
     /// ambiguous (two shapes within `margin` of each other, a box edge, or a nearest point the
     /// camera does not see well).
     pub fn truth(&self, cameras: &[CameraModel], p: &Point3<f32>, margin: f32) -> Option<Nearest> {
-        let mut all: Vec<(Nearest, usize)> =
-            self.shapes.iter().enumerate().map(|(i, s)| (s.nearest(p, margin), i)).collect();
+        let mut all: Vec<(Nearest, usize)> = self
+            .shapes
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.nearest(p, margin), i))
+            .collect();
         all.sort_by(|a, b| a.0.distance.total_cmp(&b.0.distance));
         let (best, idx) = all[0];
         if best.ambiguous {
@@ -214,7 +254,10 @@ impl Scene {
             return None;
         }
         // The nearest point must be inside no other solid (e.g. floor under a box).
-        if cameras.iter().any(|c| self.visible(c, &best.point, &best.normal, idx)) {
+        if cameras
+            .iter()
+            .any(|c| self.visible(c, &best.point, &best.normal, idx))
+        {
             Some(best)
         } else {
             None
@@ -223,7 +266,12 @@ impl Scene {
 }
 
 /// A camera at `eye` looking at `target`, image y along the projection of `down`.
-pub fn look_at(k: CameraIntrinsics, eye: Point3<f32>, target: Point3<f32>, down: Vector3<f32>) -> CameraModel {
+pub fn look_at(
+    k: CameraIntrinsics,
+    eye: Point3<f32>,
+    target: Point3<f32>,
+    down: Vector3<f32>,
+) -> CameraModel {
     let z = (target - eye).normalize();
     let y = (down - z * z.dot(&down)).normalize();
     let x = y.cross(&z);
@@ -246,7 +294,10 @@ pub fn workspace() -> Workspace {
 /// Top-down camera 0.8 m above the floor, over the workspace centre.
 pub fn top_camera() -> CameraModel {
     let c = workspace().extent() * 0.5;
-    CameraModel::top_down(CameraIntrinsics::default_640x480(), Point3::new(c.x, c.y, FLOOR_Z + 0.8))
+    CameraModel::top_down(
+        CameraIntrinsics::default_640x480(),
+        Point3::new(c.x, c.y, FLOOR_Z + 0.8),
+    )
 }
 
 /// A second view: 0.35 m to the side, looking at the scene centre.
@@ -261,15 +312,24 @@ pub fn side_camera() -> CameraModel {
 }
 
 pub fn floor() -> Shape {
-    Shape::Plane { n: Vector3::z(), d: FLOOR_Z }
+    Shape::Plane {
+        n: Vector3::z(),
+        d: FLOOR_Z,
+    }
 }
 
 pub fn sphere() -> Shape {
-    Shape::Sphere { c: Point3::new(0.38, 0.34, FLOOR_Z + 0.08), r: 0.08 }
+    Shape::Sphere {
+        c: Point3::new(0.38, 0.34, FLOOR_Z + 0.08),
+        r: 0.08,
+    }
 }
 
 pub fn cuboid() -> Shape {
-    Shape::Cuboid { min: Point3::new(0.08, 0.10, FLOOR_Z), max: Point3::new(0.26, 0.28, FLOOR_Z + 0.11) }
+    Shape::Cuboid {
+        min: Point3::new(0.08, 0.10, FLOOR_Z),
+        max: Point3::new(0.26, 0.28, FLOOR_Z + 0.11),
+    }
 }
 
 /// Accuracy of a normal grid against a scene's ground truth.
@@ -300,7 +360,12 @@ impl NormalReport {
 }
 
 /// Compares every band voxel's normal with the nearest analytic surface (see [`Scene::truth`]).
-pub fn evaluate_normals(grid: &NormalGrid, scene: &Scene, cameras: &[CameraModel], margin: f32) -> NormalReport {
+pub fn evaluate_normals(
+    grid: &NormalGrid,
+    scene: &Scene,
+    cameras: &[CameraModel],
+    margin: f32,
+) -> NormalReport {
     let ws = grid.workspace;
     let view = grid.view();
     let mut r = NormalReport::default();
@@ -315,9 +380,15 @@ pub fn evaluate_normals(grid: &NormalGrid, scene: &Scene, cameras: &[CameraModel
             r.zero_normals += 1;
         }
         let [i, j, k] = ws.unindex(idx);
-        let Some(t) = scene.truth(cameras, &ws.voxel_center(i, j, k), margin) else { continue };
+        let Some(t) = scene.truth(cameras, &ws.voxel_center(i, j, k), margin) else {
+            continue;
+        };
         r.evaluated += 1;
-        let e = if n.norm() == 0.0 { 180.0 } else { angle_deg(&n, &t.normal) };
+        let e = if n.norm() == 0.0 {
+            180.0
+        } else {
+            angle_deg(&n, &t.normal)
+        };
         if e <= 5.0 {
             r.within_5deg += 1;
         }
@@ -330,7 +401,12 @@ pub fn evaluate_normals(grid: &NormalGrid, scene: &Scene, cameras: &[CameraModel
 /// Zero crossings of the TSDF along vertical voxel columns against the analytic top surface.
 /// Columns whose surface is steep (|n_z| < 0.5), near a box edge or unseen are skipped.
 /// Returns (columns checked, columns without a crossing, max error m, mean error m).
-pub fn zero_crossing_errors(grid: &NormalGrid, scene: &Scene, cameras: &[CameraModel], margin: f32) -> (usize, usize, f32, f32) {
+pub fn zero_crossing_errors(
+    grid: &NormalGrid,
+    scene: &Scene,
+    cameras: &[CameraModel],
+    margin: f32,
+) -> (usize, usize, f32, f32) {
     let ws = grid.workspace;
     let s = ws.voxel_size_m;
     let [nx, ny, nz] = ws.dims.map(|d| d as usize);
@@ -339,10 +415,16 @@ pub fn zero_crossing_errors(grid: &NormalGrid, scene: &Scene, cameras: &[CameraM
         for j in 0..ny {
             let c = ws.voxel_center(i, j, nz - 1);
             let top = Point3::new(c.x, c.y, 2.0);
-            let Some((t, shape)) = scene.cast(&top, &-Vector3::z()) else { continue };
+            let Some((t, shape)) = scene.cast(&top, &-Vector3::z()) else {
+                continue;
+            };
             let hit = Point3::new(c.x, c.y, 2.0 - t);
             let near = scene.shapes[shape].nearest(&hit, margin);
-            if near.ambiguous || near.normal.z < 0.5 || hit.z < 0.5 * s || hit.z > (nz as f32 - 0.5) * s {
+            if near.ambiguous
+                || near.normal.z < 0.5
+                || hit.z < 0.5 * s
+                || hit.z > (nz as f32 - 0.5) * s
+            {
                 continue;
             }
             // The surface and the voxels one above and below it must be in view.
@@ -352,10 +434,16 @@ pub fn zero_crossing_errors(grid: &NormalGrid, scene: &Scene, cameras: &[CameraM
                         let p = Point3::new(hit.x, hit.y, hit.z + dz * s);
                         let pc = cam.workspace_from_camera.inverse() * p;
                         let on_image = cam.intrinsics.project(&pc).is_some_and(|(u, v)| {
-                            u >= 0.0 && v >= 0.0 && u < cam.intrinsics.width as f32 - 1.0 && v < cam.intrinsics.height as f32 - 1.0
+                            u >= 0.0
+                                && v >= 0.0
+                                && u < cam.intrinsics.width as f32 - 1.0
+                                && v < cam.intrinsics.height as f32 - 1.0
                         });
                         // No silhouette of another shape between the camera and the column.
-                        on_image && scene.cast(&cam.eye(), &(p - cam.eye())).is_some_and(|(_, i)| i == shape)
+                        on_image
+                            && scene
+                                .cast(&cam.eye(), &(p - cam.eye()))
+                                .is_some_and(|(_, i)| i == shape)
                     })
             };
             if !cameras.iter().any(in_view) {
@@ -364,14 +452,21 @@ pub fn zero_crossing_errors(grid: &NormalGrid, scene: &Scene, cameras: &[CameraM
             // No other shape near the column's band (a wall right beside it, a sphere overhang).
             let crowded = (0..=5).any(|m| {
                 let p = Point3::new(hit.x, hit.y, hit.z + m as f32 * s);
-                scene.shapes.iter().enumerate().any(|(i, sh)| i != shape && sh.nearest(&p, margin).distance < margin)
+                scene
+                    .shapes
+                    .iter()
+                    .enumerate()
+                    .any(|(i, sh)| i != shape && sh.nearest(&p, margin).distance < margin)
             });
             if crowded {
                 continue;
             }
             // First + → − crossing from the top between two band voxels.
             let col = |k: usize| grid.tsdf[ws.index(i, j, k)];
-            let Some(k) = (1..nz).rev().find(|&k| col(k) >= 0.0 && col(k - 1) < 0.0 && col(k) < 1.0 && col(k - 1) > -1.0) else {
+            let Some(k) = (1..nz)
+                .rev()
+                .find(|&k| col(k) >= 0.0 && col(k - 1) < 0.0 && col(k) < 1.0 && col(k - 1) > -1.0)
+            else {
                 count += 1;
                 missing += 1;
                 continue;
@@ -388,5 +483,8 @@ pub fn zero_crossing_errors(grid: &NormalGrid, scene: &Scene, cameras: &[CameraM
 }
 
 pub fn angle_deg(a: &Vector3<f32>, b: &Vector3<f32>) -> f32 {
-    (a.dot(b) / (a.norm() * b.norm())).clamp(-1.0, 1.0).acos().to_degrees()
+    (a.dot(b) / (a.norm() * b.norm()))
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
 }
