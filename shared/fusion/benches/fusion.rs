@@ -13,11 +13,11 @@ use psgrasp_fusion::{FusionConfig, TsdfVolume};
 use psgrasp_geometry::{CameraIntrinsics, CameraModel};
 use std::time::Instant;
 
-fn stats(mut v: Vec<f64>) -> (f64, f64, f64) {
+fn stats(mut v: Vec<f64>) -> (f64, f64, f64, f64) {
     v.sort_by(|a, b| a.total_cmp(b));
     let mean = v.iter().sum::<f64>() / v.len() as f64;
     let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
-    (mean, at(0.5), at(0.99))
+    (mean, at(0.5), at(0.99), v[0])
 }
 
 fn main() {
@@ -45,8 +45,8 @@ fn main() {
             CameraModel::top_down(hd, Point3::new(c.x, c.y, FLOOR_Z + 0.8)),
         ),
     ];
-    println!("| frame | grid | stage | mean ms | p50 ms | p99 ms |");
-    println!("|---|---|---|---|---|---|");
+    println!("| frame | grid | stage | mean ms | p50 ms | p99 ms | min ms |");
+    println!("|---|---|---|---|---|---|---|");
     for (name, cam) in cameras {
         let depth = scene.render(&cam);
         let mut vol = TsdfVolume::new(ws, &FusionConfig::default()).unwrap();
@@ -84,9 +84,12 @@ fn main() {
             ("normal extraction", t_ext),
             ("total (reset+integrate+extract)", t_all),
         ] {
-            let (mean, p50, p99) = stats(v);
-            println!("| {name} | {grid} | {stage} | {mean:.3} | {p50:.3} | {p99:.3} |");
+            let (mean, p50, p99, min) = stats(v);
+            println!("| {name} | {grid} | {stage} | {mean:.3} | {p50:.3} | {p99:.3} | {min:.3} |");
         }
     }
-    println!("\n{iterations} iterations per row, one thread.");
+    println!(
+        "\n{iterations} iterations per row, one thread (no rayon); `min` is the best estimate on a \
+         shared machine. Set FUSION_BENCH_ITERS to change the count."
+    );
 }

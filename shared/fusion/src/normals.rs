@@ -87,8 +87,7 @@ pub(crate) fn extract(
             smooth_gradients(
                 dims,
                 axis,
-                tsdf,
-                weight,
+                trunc,
                 &scratch.ranges,
                 &mut scratch.field,
                 &mut scratch.smoothed,
@@ -219,51 +218,69 @@ fn build_field(
 fn smooth_gradients(
     dims: [usize; 3],
     axis: usize,
-    tsdf: &[f32],
-    weight: &[f32],
+    trunc: f32,
     ranges: &[[u16; 2]],
     field: &mut [FieldSample],
     out: &mut [[f32; 3]],
 ) {
     let [nx, ny, nz] = dims;
-    let band = |idx: usize| weight[idx] > 0.0 && in_band(tsdf[idx]);
-    let cached = |c: usize, k: usize| {
-        let [lo, hi] = ranges[c];
-        (lo as usize..=hi as usize).contains(&k)
-    };
+    // Band voxels: observed (F not NaN) and inside the truncation band.
+    let band = |f: &FieldSample| f[0].abs() < trunc;
+    let col_step = [ny, 1, 0][axis];
+    let voxel_step = col_step * nz + usize::from(axis == 2);
     for i in 0..nx {
         for j in 0..ny {
             let c = i * ny + j;
+            let coord = [i, j, 0][axis];
+            let has_lo = axis == 2 || coord > 0;
+            let has_hi = axis == 2 || coord + 1 < dims[axis];
+            let range_lo = if axis != 2 && has_lo {
+                ranges[c - col_step]
+            } else {
+                ranges[c]
+            };
+            let range_hi = if axis != 2 && has_hi {
+                ranges[c + col_step]
+            } else {
+                ranges[c]
+            };
             let [lo, hi] = ranges[c];
             for k in lo as usize..=hi as usize {
                 let idx = c * nz + k;
                 let g = field[idx];
-                if !band(idx) {
+                if !band(&g) {
                     out[idx] = [g[1], g[2], g[3]];
                     continue;
                 }
                 let mut acc = [2.0 * g[1], 2.0 * g[2], 2.0 * g[3]];
                 let mut total = 2.0f32;
-                let coord = [i, j, k];
-                for dir in [-1isize, 1] {
-                    let q = coord[axis] as isize + dir;
-                    if q < 0 || q >= dims[axis] as isize {
-                        continue;
-                    }
-                    let mut nb = coord;
-                    nb[axis] = q as usize;
-                    let nc = nb[0] * ny + nb[1];
-                    let nidx = nc * nz + nb[2];
-                    if !cached(nc, nb[2]) || !band(nidx) {
+                let lo_ok = if axis == 2 {
+                    k > lo as usize
+                } else {
+                    has_lo && (range_lo[0] as usize..=range_lo[1] as usize).contains(&k)
+                };
+                let hi_ok = if axis == 2 {
+                    k < hi as usize
+                } else {
+                    has_hi && (range_hi[0] as usize..=range_hi[1] as usize).contains(&k)
+                };
+                for (ok, nidx) in [
+                    (lo_ok, idx.wrapping_sub(voxel_step)),
+                    (hi_ok, idx + voxel_step),
+                ] {
+                    if !ok {
                         continue;
                     }
                     let h = field[nidx];
-                    acc[0] += h[1];
-                    acc[1] += h[2];
-                    acc[2] += h[3];
-                    total += 1.0;
+                    if band(&h) {
+                        acc[0] += h[1];
+                        acc[1] += h[2];
+                        acc[2] += h[3];
+                        total += 1.0;
+                    }
                 }
-                out[idx] = acc.map(|a| a / total);
+                let inv = 1.0 / total;
+                out[idx] = acc.map(|a| a * inv);
             }
         }
     }
