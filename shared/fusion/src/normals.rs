@@ -3,7 +3,9 @@
 //! Method:
 //! 1. cache `F` (signed distance in voxels) and its gradient `∇F` for the voxels of each column
 //!    between its lowest and highest band voxel (±1) — central differences, one-sided next to
-//!    truncated or unobserved neighbours, whose clamped values would bias the difference;
+//!    truncated or unobserved neighbours, whose clamped values would bias the difference —
+//!    then (optionally) smooth the gradients of band voxels with a separable [1, 2, 1] kernel
+//!    against sensor noise;
 //! 2. for a band voxel `x`, step to the zero level set along the gradient (`t = x − F ∇F/|∇F|²`)
 //!    and read the trilinearly interpolated gradient there;
 //! 3. iterate closest-point updates `t ← x ∓ |x − q| n(t)`, where `q` is the projection of `t`

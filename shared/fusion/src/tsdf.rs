@@ -313,13 +313,14 @@ impl TsdfVolume {
                             fu * fv,
                         ];
                         let ds = corners.map(|c| depth[c]);
-                        let all_ok = ds.iter().all(|&d| in_range(d, lo, hi));
-                        let d = if bilinear
-                            && all_ok
-                            && ds.iter().fold(f32::MIN, |a, &b| a.max(b))
-                                - ds.iter().fold(f32::MAX, |a, &b| a.min(b))
-                                <= jump
-                        {
+                        // Non-short-circuit `&`: branch-free validity of all four corners.
+                        let all_ok = in_range(ds[0], lo, hi)
+                            & in_range(ds[1], lo, hi)
+                            & in_range(ds[2], lo, hi)
+                            & in_range(ds[3], lo, hi);
+                        let spread = ds[0].max(ds[1]).max(ds[2].max(ds[3]))
+                            - ds[0].min(ds[1]).min(ds[2].min(ds[3]));
+                        let d = if bilinear && all_ok && spread <= jump {
                             ds[0] * wts[0] + ds[1] * wts[1] + ds[2] * wts[2] + ds[3] * wts[3]
                         } else {
                             // Nearest usable pixel: the usable corner of largest weight.
@@ -416,7 +417,7 @@ impl TsdfVolume {
 /// A usable depth: finite, positive and inside `[lo, hi]` (NaN fails every comparison).
 #[inline(always)]
 fn in_range(d: f32, lo: f32, hi: f32) -> bool {
-    d > 0.0 && d >= lo && d <= hi
+    (d > 0.0) & (d >= lo) & (d <= hi)
 }
 
 fn check_buffers(ws: &Workspace, normals: &[f32], tsdf: &[f32]) -> Result<(), FusionError> {
