@@ -3,7 +3,7 @@
 //! record that travels on to the end of the pipeline.
 use crate::runtime::{run_event_loop, LoopExit, StageArgs, StageContext};
 use crate::sources::source_from_config;
-use anyhow::{Context, Result};
+use anyhow::Result;
 use iceoryx2::prelude::*;
 use psgrasp_fusion::{FusionError, NormalGridView, TsdfVolume};
 use psgrasp_geometry::{DepthImage, GraspConfiguration};
@@ -89,7 +89,10 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
         announce_pub.send_header(announce)?;
         ctx.stats.frames_in += 1;
         ctx.stats.last_frame_id = frame_id;
-        match frame.and_then(|f| validate_frame(&f.depth, &f.camera).map(|_| f)) {
+        let checked = frame
+            .map_err(|e| (StatusCode::InvalidDepth, format!("{e:#}")))
+            .and_then(|f| validate_frame(&f.depth, &f.camera).map(|_| f));
+        match checked {
             Ok(f) => {
                 let mut h = FrameHeader::new(MessageKind::DepthFrame, frame_id, cfg.camera.source_id, &f.camera, &cfg.workspace, f.capture_ns);
                 h.stamp(Stamp::IngestPublished);
@@ -101,11 +104,10 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
                     .ok();
                 ctx.stats.frames_out += 1;
             }
-            Err(e) => {
-                let status = if format!("{e:#}").contains("intrinsics") { StatusCode::InvalidCamera } else { StatusCode::InvalidDepth };
-                tracing::warn!("frame {frame_id}: {e:#}");
+            Err((status, msg)) => {
+                tracing::warn!("frame {frame_id}: {msg}");
                 let mut h = FrameHeader::new(MessageKind::DepthFrame, frame_id, cfg.camera.source_id, &fallback_camera, &cfg.workspace, now_ns())
-                    .into_error(status, Stage::CameraIngest, &format!("{e:#}"));
+                    .into_error(status, Stage::CameraIngest, &msg);
                 h.stamp(Stamp::IngestPublished);
                 depth_pub.send_header(h)?;
                 ctx.stats.errors += 1;
@@ -128,18 +130,19 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
     Ok(())
 }
 
-fn validate_frame(depth: &DepthImage, camera: &psgrasp_geometry::CameraModel) -> Result<()> {
-    camera.validate().context("camera intrinsics/pose")?;
-    anyhow::ensure!(
-        depth.width == camera.intrinsics.width && depth.height == camera.intrinsics.height,
-        "frame is {}×{} but the intrinsics say {}×{}",
-        depth.width,
-        depth.height,
-        camera.intrinsics.width,
-        camera.intrinsics.height
-    );
-    depth.require_valid()?;
-    Ok(())
+/// Checks a source frame before it enters the pipeline; the status says what is wrong.
+fn validate_frame(depth: &DepthImage, camera: &psgrasp_geometry::CameraModel) -> Result<(), (StatusCode, String)> {
+    camera.validate().map_err(|e| (StatusCode::InvalidCamera, format!("camera intrinsics/pose: {e}")))?;
+    if depth.width != camera.intrinsics.width || depth.height != camera.intrinsics.height {
+        return Err((
+            StatusCode::InvalidDepth,
+            format!(
+                "frame is {}×{} but the intrinsics say {}×{}",
+                depth.width, depth.height, camera.intrinsics.width, camera.intrinsics.height
+            ),
+        ));
+    }
+    depth.require_valid().map_err(|e| (StatusCode::InvalidDepth, e.to_string()))
 }
 
 fn fusion_status(e: &FusionError) -> StatusCode {
@@ -188,10 +191,15 @@ pub fn run_grid_fusion(args: StageArgs) -> Result<()> {
                     });
                 match result {
                     Ok(_) => {
-                        let sent = grid_pub.send_with(out, 4 * n, |buf| {
-                            let (normals, tsdf) = buf.split_at_mut(3 * n);
-                            volume.write_normal_grid(normals, tsdf)
-                        })?;
+                        let sent = grid_pub.send_with_stamp(
+                            out,
+                            4 * n,
+                            |buf| {
+                                let (normals, tsdf) = buf.split_at_mut(3 * n);
+                                volume.write_normal_grid(normals, tsdf)
+                            },
+                            Some(Stamp::FusionEnd),
+                        )?;
                         match sent {
                             Ok(_) => {
                                 ctx.stats.frames_out += 1;
@@ -252,7 +260,14 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
     let names = ctx.node.names.clone();
     let grid_sub = ctx.node.subscriber::<f32>(&names.grid())?;
     let grasps_pub = ctx.node.publisher::<GraspRecord>(&names.grasps(), 1024)?;
-    let mut backend = psgrasp_inference::backend_from_config(&cfg.inference, cfg.gripper)?;
+    let mut backend_cfg = cfg.inference.clone();
+    // Contacts on the thin bin walls are never pickable: unless configured, restrict the
+    // analytic backend's contacts to the bin interior.
+    let psgrasp_inference::BackendConfig::Analytic(a) = &mut backend_cfg;
+    if a.contact_region.is_none() {
+        a.contact_region = Some(psgrasp_inference::ContactRegion::inside_bin(&cfg.bin, 0.005));
+    }
+    let mut backend = psgrasp_inference::backend_from_config(&backend_cfg, cfg.gripper)?;
     let mut last_stats = Instant::now();
     tracing::info!("inference[{}] ready (backend {})", ctx.worker, backend.name());
     let exit = run_event_loop(&[grid_sub.listener()], Duration::from_millis(200), || {
@@ -375,9 +390,10 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
             } else if let Err(m) = h.check(MessageKind::GraspSet) {
                 Err((StatusCode::ProtocolError, m))
             } else if let Some((gh, data)) = &grid {
-                grid_view(gh, data).map_err(|m| (StatusCode::ProtocolError, m)).map(|view| {
-                    let selection = psgrasp_selection::select(&configs, &view, &cfg.bin, &cfg.gripper, &cfg.selection);
-                    selection
+                grid_view(gh, data).map_err(|m| (StatusCode::ProtocolError, m)).and_then(|view| {
+                    let selection = psgrasp_selection::select(&configs, &view, &cfg.bin, &cfg.gripper, &cfg.selection)
+                        .map_err(|e| (StatusCode::SelectionFailed, e.to_string()))?;
+                    Ok(selection
                         .picks
                         .iter()
                         .take(MAX_PICKS_PER_FRAME)
@@ -395,7 +411,7 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
                                 rank as u32,
                             )
                         })
-                        .collect()
+                        .collect())
                 })
             } else {
                 Err((StatusCode::SelectionFailed, "normal grid of this frame never arrived (dropped under overload); no collision check possible".into()))

@@ -274,9 +274,21 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
     /// If `fill` fails, nothing is sent and its error is returned.
     pub fn send_with<E>(
         &self,
+        header: FrameHeader,
+        len: usize,
+        fill: impl FnOnce(&mut [T]) -> Result<(), E>,
+    ) -> Result<Result<usize, E>, IpcError> {
+        self.send_with_stamp(header, len, fill, None)
+    }
+
+    /// Like [`Self::send_with`], recording `end_stamp` in the header once `fill` has finished
+    /// (so the stage's processing time includes the work done inside the loan).
+    pub fn send_with_stamp<E>(
+        &self,
         mut header: FrameHeader,
         len: usize,
         fill: impl FnOnce(&mut [T]) -> Result<(), E>,
+        end_stamp: Option<crate::Stamp>,
     ) -> Result<Result<usize, E>, IpcError> {
         let mut sample = self
             .publisher
@@ -286,6 +298,9 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
             return Ok(Err(e));
         }
         header.element_count = len as u32;
+        if let Some(stamp) = end_stamp {
+            header.stamp(stamp);
+        }
         *sample.user_header_mut() = header;
         let delivered =
             sample.send().map_err(|e| IpcError::Send { service: self.service.clone(), detail: format!("{e:?}") })?;
