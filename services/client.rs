@@ -3,8 +3,8 @@
 use anyhow::Result;
 use iceoryx2::prelude::*;
 use psgrasp_ipc::{
-    ChannelConfig, FrameHeader, FrameSubscriber, NextPickRequest, NextPickResponse, PickRecord, PipelineNode, Stage,
-    StageStats, StatusCode,
+    ChannelConfig, FrameHeader, FrameSubscriber, NextPickRequest, NextPickResponse, PickRecord,
+    PipelineNode, Stage, StageStats, StatusCode,
 };
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
@@ -46,9 +46,17 @@ impl PipelineMonitor {
     /// Connects to pipeline `pipeline` (node name must be unique per process).
     pub fn connect(node_name: &str, pipeline: &str, channel: ChannelConfig) -> Result<Self> {
         let node = PipelineNode::new(node_name, pipeline, channel)?;
-        let picks = node.subscriber_with_buffer::<PickRecord>(&node.names.picks(), channel.subscriber_buffer.max(64))?;
+        let picks = node.subscriber_with_buffer::<PickRecord>(
+            &node.names.picks(),
+            channel.subscriber_buffer.max(64),
+        )?;
         let stats = node.subscriber_with_buffer::<StageStats>(&node.names.stats(), 64)?;
-        Ok(Self { node, picks, stats, latest_stats: HashMap::new() })
+        Ok(Self {
+            node,
+            picks,
+            stats,
+            latest_stats: HashMap::new(),
+        })
     }
 
     /// Waits up to `timeout` for the next outcome. `Ok(None)` on timeout or a termination signal.
@@ -57,13 +65,17 @@ impl PipelineMonitor {
         loop {
             self.drain_stats()?;
             if let Some(s) = self.picks.receive()? {
-                return Ok(Some(FrameOutcome { header: *s.user_header(), picks: s.payload().to_vec() }));
+                return Ok(Some(FrameOutcome {
+                    header: *s.user_header(),
+                    picks: s.payload().to_vec(),
+                }));
             }
             let now = Instant::now();
             if now >= deadline {
                 return Ok(None);
             }
-            self.picks.wait((deadline - now).min(Duration::from_millis(50)));
+            self.picks
+                .wait((deadline - now).min(Duration::from_millis(50)));
             if self.node.node().wait(Duration::ZERO).is_err() {
                 return Ok(None);
             }
@@ -95,7 +107,8 @@ pub struct PickClient {
 impl PickClient {
     /// Connects through an existing node.
     pub fn connect(node: &PipelineNode) -> Result<Self> {
-        let name = ServiceName::new(&node.names.next_pick()).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        let name =
+            ServiceName::new(&node.names.next_pick()).map_err(|e| anyhow::anyhow!("{e:?}"))?;
         let service = node
             .node()
             .service_builder(&name)
@@ -103,22 +116,43 @@ impl PickClient {
             .max_clients(16)
             .open_or_create()
             .map_err(|e| anyhow::anyhow!("next-pick service: {e:?}"))?;
-        let client = service.client_builder().create().map_err(|e| anyhow::anyhow!("next-pick client: {e:?}"))?;
-        let event = node.node().service_builder(&name).event().open_or_create().map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let notifier = event.notifier_builder().create().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        let client = service
+            .client_builder()
+            .create()
+            .map_err(|e| anyhow::anyhow!("next-pick client: {e:?}"))?;
+        let event = node
+            .node()
+            .service_builder(&name)
+            .event()
+            .open_or_create()
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        let notifier = event
+            .notifier_builder()
+            .create()
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
         Ok(Self { client, notifier })
     }
 
     /// Requests a pick (`failed_previous` = the last pick failed, advance). Waits up to `timeout`.
-    pub fn next_pick(&self, failed_previous: bool, timeout: Duration) -> Result<Option<NextPickResponse>> {
+    pub fn next_pick(
+        &self,
+        failed_previous: bool,
+        timeout: Duration,
+    ) -> Result<Option<NextPickResponse>> {
         let pending = self
             .client
-            .send_copy(NextPickRequest { mode: failed_previous as u32, reserved: 0 })
+            .send_copy(NextPickRequest {
+                mode: failed_previous as u32,
+                reserved: 0,
+            })
             .map_err(|e| anyhow::anyhow!("next-pick request: {e:?}"))?;
         let _ = self.notifier.notify();
         let deadline = Instant::now() + timeout;
         while Instant::now() < deadline {
-            if let Some(r) = pending.receive().map_err(|e| anyhow::anyhow!("next-pick response: {e:?}"))? {
+            if let Some(r) = pending
+                .receive()
+                .map_err(|e| anyhow::anyhow!("next-pick response: {e:?}"))?
+            {
                 return Ok(Some(*r.payload()));
             }
             std::thread::sleep(Duration::from_millis(1));

@@ -61,12 +61,30 @@ impl Supervisor {
         check_shm_space(&config)?;
         let w = config.pipeline.workers;
         let mut processes = Vec::new();
-        for (stage, n) in [(Stage::GraspSelection, w.selection), (Stage::Inference, w.inference), (Stage::GridFusion, w.fusion), (Stage::CameraIngest, 1)] {
+        for (stage, n) in [
+            (Stage::GraspSelection, w.selection),
+            (Stage::Inference, w.inference),
+            (Stage::GridFusion, w.fusion),
+            (Stage::CameraIngest, 1),
+        ] {
             for worker in 0..n {
-                processes.push(StageProcess { stage, worker, child: None, restarts: vec![], restart_count: 0, finished: false });
+                processes.push(StageProcess {
+                    stage,
+                    worker,
+                    child: None,
+                    restarts: vec![],
+                    restart_count: 0,
+                    finished: false,
+                });
             }
         }
-        let mut sup = Self { config_path: config_path.to_path_buf(), config, bin_dir: bin_dir.to_path_buf(), processes, quiet };
+        let mut sup = Self {
+            config_path: config_path.to_path_buf(),
+            config,
+            bin_dir: bin_dir.to_path_buf(),
+            processes,
+            quiet,
+        };
         for i in 0..sup.processes.len() {
             sup.spawn(i)?;
         }
@@ -82,12 +100,26 @@ impl Supervisor {
         let p = &mut self.processes[i];
         let exe = self.bin_dir.join(format!("psgrasp-{}", p.stage.name()));
         let mut cmd = Command::new(&exe);
-        cmd.arg("--config").arg(&self.config_path).arg("--worker").arg(p.worker.to_string()).stdin(Stdio::null());
+        cmd.arg("--config")
+            .arg(&self.config_path)
+            .arg("--worker")
+            .arg(p.worker.to_string())
+            .stdin(Stdio::null());
         if self.quiet {
-            cmd.env("RUST_LOG", std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into()));
+            cmd.env(
+                "RUST_LOG",
+                std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into()),
+            );
         }
-        let child = cmd.spawn().with_context(|| format!("starting {}", exe.display()))?;
-        tracing::info!("started {}[{}] pid {}", p.stage.name(), p.worker, child.id());
+        let child = cmd
+            .spawn()
+            .with_context(|| format!("starting {}", exe.display()))?;
+        tracing::info!(
+            "started {}[{}] pid {}",
+            p.stage.name(),
+            p.worker,
+            child.id()
+        );
         p.child = Some(child);
         Ok(())
     }
@@ -117,7 +149,10 @@ impl Supervisor {
             let window = Duration::from_secs(self.config.pipeline.restart_window_s);
             p.restarts.retain(|t| t.elapsed() < window);
             if p.restarts.len() as u32 >= self.config.pipeline.max_restarts {
-                events.push(format!("{name} gave up after {} restarts in {window:?}", p.restarts.len()));
+                events.push(format!(
+                    "{name} gave up after {} restarts in {window:?}",
+                    p.restarts.len()
+                ));
                 tracing::error!("{name}: too many restarts, not restarting");
                 continue;
             }
@@ -166,7 +201,9 @@ impl Supervisor {
                 loop {
                     match c.try_wait() {
                         Ok(Some(_)) => break,
-                        Ok(None) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(10)),
+                        Ok(None) if Instant::now() < deadline => {
+                            std::thread::sleep(Duration::from_millis(10))
+                        }
                         _ => {
                             let _ = c.kill();
                             let _ = c.wait();

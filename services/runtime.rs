@@ -22,8 +22,13 @@ pub struct StageArgs {
 
 /// Initialises logging to stderr (`RUST_LOG` overrides the level, default `info`).
 pub fn init_logging() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).try_init();
+    let filter =
+        tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .try_init();
     iceoryx2::prelude::set_log_level(LogLevel::Error);
 }
 
@@ -54,13 +59,31 @@ impl StageContext {
             Stage::Inference => config.pipeline.workers.inference,
             Stage::GraspSelection => config.pipeline.workers.selection,
         };
-        anyhow::ensure!(args.worker < workers, "worker index {} but {} has {workers} worker(s)", args.worker, stage.name());
+        anyhow::ensure!(
+            args.worker < workers,
+            "worker index {} but {} has {workers} worker(s)",
+            args.worker,
+            stage.name()
+        );
         let node_name = format!("{}-{}-{}", config.pipeline.name, stage.name(), args.worker);
         let node = PipelineNode::new(&node_name, &config.pipeline.name, config.pipeline.channel)
             .with_context(|| format!("starting {node_name}"))?;
         let stats_pub = node.publisher_with_buffer::<StageStats>(&node.names.stats(), 1, 64)?;
-        let stats = StageStats { stage: stage as u32, worker: args.worker, pid: std::process::id(), ..Default::default() };
-        Ok(Self { stage, worker: args.worker, workers, config, node, stats_pub, stats })
+        let stats = StageStats {
+            stage: stage as u32,
+            worker: args.worker,
+            pid: std::process::id(),
+            ..Default::default()
+        };
+        Ok(Self {
+            stage,
+            worker: args.worker,
+            workers,
+            config,
+            node,
+            stats_pub,
+            stats,
+        })
     }
 
     /// True if this worker handles `frame_id`.
@@ -72,7 +95,10 @@ impl StageContext {
     pub fn publish_stats(&mut self) {
         self.stats.stamp_ns = now_ns();
         let header = psgrasp_ipc::FrameHeader::default();
-        if let Err(e) = self.stats_pub.send_slice(header, std::slice::from_ref(&self.stats)) {
+        if let Err(e) = self
+            .stats_pub
+            .send_slice(header, std::slice::from_ref(&self.stats))
+        {
             tracing::warn!("stats publish failed: {e}");
         }
     }
@@ -116,9 +142,15 @@ pub fn run_event_loop(
         .map_err(|e| anyhow::anyhow!("creating WaitSet: {e:?}"))?;
     let mut guards = Vec::new();
     for l in listeners {
-        guards.push(waitset.attach_notification(*l).map_err(|e| anyhow::anyhow!("attaching listener: {e:?}"))?);
+        guards.push(
+            waitset
+                .attach_notification(*l)
+                .map_err(|e| anyhow::anyhow!("attaching listener: {e:?}"))?,
+        );
     }
-    let _tick = waitset.attach_interval(tick).map_err(|e| anyhow::anyhow!("attaching interval: {e:?}"))?;
+    let _tick = waitset
+        .attach_interval(tick)
+        .map_err(|e| anyhow::anyhow!("attaching interval: {e:?}"))?;
     let mut result: Result<bool> = Ok(true);
     loop {
         let run = waitset
@@ -130,7 +162,9 @@ pub fn run_event_loop(
             })
             .map_err(|e| anyhow::anyhow!("WaitSet: {e:?}"))?;
         match run {
-            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => return Ok(LoopExit::Signal),
+            WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => {
+                return Ok(LoopExit::Signal)
+            }
             _ => {}
         }
         match on_wake() {

@@ -53,7 +53,13 @@ pub struct SyntheticSource {
 impl SyntheticSource {
     /// A source following `camera.synthetic`.
     pub fn new(cfg: &PipelineConfig) -> Self {
-        Self { cfg: cfg.clone(), camera: cfg.camera_model(), frame: 0, scene: None, clean: None }
+        Self {
+            cfg: cfg.clone(),
+            camera: cfg.camera_model(),
+            frame: 0,
+            scene: None,
+            clean: None,
+        }
     }
 
     /// Renders frame `k` (deterministic for the configured seed).
@@ -68,7 +74,11 @@ impl SyntheticSource {
         }
         let clean = self.clean.as_ref().expect("rendered with the scene");
         Ok(if s.noise {
-            psgrasp_sim::add_dex_noise(clean, scene_seed ^ k.rotate_left(17), &psgrasp_sim::NoiseConfig::default())
+            psgrasp_sim::add_dex_noise(
+                clean,
+                scene_seed ^ k.rotate_left(17),
+                &psgrasp_sim::NoiseConfig::default(),
+            )
         } else {
             clean.clone()
         })
@@ -84,7 +94,11 @@ impl DepthSource for SyntheticSource {
         let k = self.frame;
         self.frame += 1;
         let depth = self.render(k)?;
-        Ok(Some(SourceFrame { depth, camera: self.camera, capture_ns: now_ns() }))
+        Ok(Some(SourceFrame {
+            depth,
+            camera: self.camera,
+            capture_ns: now_ns(),
+        }))
     }
 }
 
@@ -110,22 +124,38 @@ pub struct IntrinsicsFile {
 impl IntrinsicsFile {
     /// Reads and validates an intrinsics file.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading intrinsics {}", path.display()))?;
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("reading intrinsics {}", path.display()))?;
         let file: Self = if path.extension().is_some_and(|e| e == "toml") {
-            toml::from_str(&text).with_context(|| format!("parsing intrinsics {}", path.display()))?
+            toml::from_str(&text)
+                .with_context(|| format!("parsing intrinsics {}", path.display()))?
         } else {
-            serde_json::from_str(&text).with_context(|| format!("parsing intrinsics {}", path.display()))?
+            serde_json::from_str(&text)
+                .with_context(|| format!("parsing intrinsics {}", path.display()))?
         };
-        file.intrinsics().validate().with_context(|| format!("intrinsics {}", path.display()))?;
+        file.intrinsics()
+            .validate()
+            .with_context(|| format!("intrinsics {}", path.display()))?;
         if let Some(u) = file.depth_unit_m {
-            anyhow::ensure!(u.is_finite() && u > 0.0, "intrinsics {}: depth_unit_m {u} must be > 0", path.display());
+            anyhow::ensure!(
+                u.is_finite() && u > 0.0,
+                "intrinsics {}: depth_unit_m {u} must be > 0",
+                path.display()
+            );
         }
         Ok(file)
     }
 
     /// As camera intrinsics.
     pub fn intrinsics(&self) -> CameraIntrinsics {
-        CameraIntrinsics { width: self.width, height: self.height, fx: self.fx, fy: self.fy, cx: self.cx, cy: self.cy }
+        CameraIntrinsics {
+            width: self.width,
+            height: self.height,
+            fx: self.fx,
+            fy: self.fy,
+            cx: self.cx,
+            cy: self.cy,
+        }
     }
 }
 
@@ -153,12 +183,23 @@ impl ReplaySource {
         };
         let unit_m = file_unit.or(r.depth_unit_m).unwrap_or(0.001);
         let pose = cfg.camera.pose.map(|p| p.isometry());
-        Ok(Self { files, next: 0, looping: r.looping, intrinsics, unit_m, pose, cfg: cfg.clone() })
+        Ok(Self {
+            files,
+            next: 0,
+            looping: r.looping,
+            intrinsics,
+            unit_m,
+            pose,
+            cfg: cfg.clone(),
+        })
     }
 
     fn camera_for(&mut self, depth: &DepthImage) -> Result<CameraModel> {
         if let Some(pose) = self.pose {
-            return Ok(CameraModel { intrinsics: self.intrinsics, workspace_from_camera: pose });
+            return Ok(CameraModel {
+                intrinsics: self.intrinsics,
+                workspace_from_camera: pose,
+            });
         }
         // No calibrated pose: put the workspace on the dominant plane once, then keep it.
         let camera = fit_workspace_to_plane(depth, &self.intrinsics, &self.cfg)?;
@@ -168,12 +209,28 @@ impl ReplaySource {
 }
 
 /// Places the workspace on the dominant plane (table or bin floor) seen in `depth`.
-pub fn fit_workspace_to_plane(depth: &DepthImage, intrinsics: &CameraIntrinsics, cfg: &PipelineConfig) -> Result<CameraModel> {
-    let plane = psgrasp_fusion::fit_support_plane(depth, intrinsics, &psgrasp_fusion::PlaneFitConfig::default(), 0)
-        .context("fitting the support plane to place the workspace")?;
+pub fn fit_workspace_to_plane(
+    depth: &DepthImage,
+    intrinsics: &CameraIntrinsics,
+    cfg: &PipelineConfig,
+) -> Result<CameraModel> {
+    let plane = psgrasp_fusion::fit_support_plane(
+        depth,
+        intrinsics,
+        &psgrasp_fusion::PlaneFitConfig::default(),
+        0,
+    )
+    .context("fitting the support plane to place the workspace")?;
     // The plane (bin floor or table) goes where the configured bin floor is.
-    let placement = psgrasp_fusion::PlacementConfig { plane_height_m: cfg.bin.floor_center.z };
-    Ok(psgrasp_fusion::workspace_camera_from_plane(&plane, intrinsics, &cfg.workspace, &placement)?)
+    let placement = psgrasp_fusion::PlacementConfig {
+        plane_height_m: cfg.bin.floor_center.z,
+    };
+    Ok(psgrasp_fusion::workspace_camera_from_plane(
+        &plane,
+        intrinsics,
+        &cfg.workspace,
+        &placement,
+    )?)
 }
 
 impl DepthSource for ReplaySource {
@@ -202,13 +259,18 @@ impl DepthSource for ReplaySource {
             );
         }
         let camera = self.camera_for(&depth)?;
-        Ok(Some(SourceFrame { depth, camera, capture_ns: now_ns() }))
+        Ok(Some(SourceFrame {
+            depth,
+            camera,
+            capture_ns: now_ns(),
+        }))
     }
 }
 
 /// Depth files under `path` (a file, or a folder's `.png`/`.npy` files sorted by name).
 pub fn list_depth_files(path: &Path) -> Result<Vec<PathBuf>> {
-    let meta = std::fs::metadata(path).with_context(|| format!("replay path {}", path.display()))?;
+    let meta =
+        std::fs::metadata(path).with_context(|| format!("replay path {}", path.display()))?;
     let mut files = if meta.is_dir() {
         std::fs::read_dir(path)?
             .filter_map(|e| e.ok().map(|e| e.path()))
@@ -218,16 +280,24 @@ pub fn list_depth_files(path: &Path) -> Result<Vec<PathBuf>> {
         vec![path.to_path_buf()]
     };
     files.sort();
-    anyhow::ensure!(!files.is_empty(), "no .png or .npy depth files in {}", path.display());
+    anyhow::ensure!(
+        !files.is_empty(),
+        "no .png or .npy depth files in {}",
+        path.display()
+    );
     Ok(files)
 }
 
 /// Loads a 16-bit PNG (counts × `unit_m`) or a 2-D `.npy` (`<u2` counts × `unit_m`, or `<f4`/`<f8` metres).
 pub fn load_depth_file(path: &Path, unit_m: f32) -> Result<DepthImage> {
     match path.extension().and_then(|e| e.to_str()) {
-        Some("png") => psgrasp_fusion::load_depth_png(path, unit_m).with_context(|| format!("reading {}", path.display())),
+        Some("png") => psgrasp_fusion::load_depth_png(path, unit_m)
+            .with_context(|| format!("reading {}", path.display())),
         Some("npy") => load_depth_npy(path, unit_m),
-        _ => bail!("{}: unsupported depth file (expected .png or .npy)", path.display()),
+        _ => bail!(
+            "{}: unsupported depth file (expected .png or .npy)",
+            path.display()
+        ),
     }
 }
 
@@ -240,17 +310,37 @@ pub fn load_depth_npy(path: &Path, unit_m: f32) -> Result<DepthImage> {
     }
     let (header_len, start) = match bytes[6] {
         1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
         _ => return Err(err("unsupported .npy version")),
     };
-    let header = std::str::from_utf8(bytes.get(start..start + header_len).ok_or_else(|| err("truncated header"))?)
-        .map_err(|_| err("header is not UTF-8"))?;
+    let header = std::str::from_utf8(
+        bytes
+            .get(start..start + header_len)
+            .ok_or_else(|| err("truncated header"))?,
+    )
+    .map_err(|_| err("header is not UTF-8"))?;
     if header.contains("'fortran_order': True") {
         return Err(err("Fortran-order arrays are not supported"));
     }
-    let descr = header.split("'descr':").nth(1).and_then(|s| s.split('\'').nth(1)).ok_or_else(|| err("no descr"))?;
-    let shape_txt = header.split("'shape':").nth(1).and_then(|s| s.split(['(', ')']).nth(1)).ok_or_else(|| err("no shape"))?;
-    let shape: Vec<usize> = shape_txt.split(',').filter(|s| !s.trim().is_empty()).map(|s| s.trim().parse()).collect::<Result<_, _>>().map_err(|_| err("bad shape"))?;
+    let descr = header
+        .split("'descr':")
+        .nth(1)
+        .and_then(|s| s.split('\'').nth(1))
+        .ok_or_else(|| err("no descr"))?;
+    let shape_txt = header
+        .split("'shape':")
+        .nth(1)
+        .and_then(|s| s.split(['(', ')']).nth(1))
+        .ok_or_else(|| err("no shape"))?;
+    let shape: Vec<usize> = shape_txt
+        .split(',')
+        .filter(|s| !s.trim().is_empty())
+        .map(|s| s.trim().parse())
+        .collect::<Result<_, _>>()
+        .map_err(|_| err("bad shape"))?;
     if shape.len() != 2 {
         return Err(err("expected a 2-D array (height, width)"));
     }
@@ -258,10 +348,26 @@ pub fn load_depth_npy(path: &Path, unit_m: f32) -> Result<DepthImage> {
     let data = &bytes[start + header_len..];
     let n = h * w;
     let values: Vec<f32> = match descr {
-        "<u2" | "|u2" => data.chunks_exact(2).take(n).map(|c| u16::from_le_bytes([c[0], c[1]]) as f32 * unit_m).collect(),
-        "<f4" => data.chunks_exact(4).take(n).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
-        "<f8" => data.chunks_exact(8).take(n).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")) as f32).collect(),
-        other => return Err(err(&format!("unsupported dtype {other} (use <u2, <f4 or <f8)"))),
+        "<u2" | "|u2" => data
+            .chunks_exact(2)
+            .take(n)
+            .map(|c| u16::from_le_bytes([c[0], c[1]]) as f32 * unit_m)
+            .collect(),
+        "<f4" => data
+            .chunks_exact(4)
+            .take(n)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
+        "<f8" => data
+            .chunks_exact(8)
+            .take(n)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")) as f32)
+            .collect(),
+        other => {
+            return Err(err(&format!(
+                "unsupported dtype {other} (use <u2, <f4 or <f8)"
+            )))
+        }
     };
     if values.len() != n {
         return Err(err("file is shorter than its shape says"));
@@ -271,7 +377,10 @@ pub fn load_depth_npy(path: &Path, unit_m: f32) -> Result<DepthImage> {
 
 /// Writes a 2-D `<f4` `.npy` file (metres), e.g. to record synthetic frames for replay.
 pub fn save_depth_npy(path: &Path, depth: &DepthImage) -> Result<()> {
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", depth.height, depth.width);
+    let mut header = format!(
+        "{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}",
+        depth.height, depth.width
+    );
     while (10 + header.len() + 1) % 64 != 0 {
         header.push(' ');
     }
@@ -302,7 +411,10 @@ mod tests {
         assert_eq!(back.data[4], 1.0);
         assert!(back.data[3].is_nan());
         std::fs::write(dir.join("bad.npy"), b"hello").unwrap();
-        assert!(load_depth_npy(&dir.join("bad.npy"), 0.001).unwrap_err().to_string().contains("not a .npy"));
+        assert!(load_depth_npy(&dir.join("bad.npy"), 0.001)
+            .unwrap_err()
+            .to_string()
+            .contains("not a .npy"));
         let mut truncated = std::fs::read(&p).unwrap();
         truncated.truncate(truncated.len() - 4);
         std::fs::write(dir.join("short.npy"), truncated).unwrap();

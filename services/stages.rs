@@ -8,8 +8,8 @@ use iceoryx2::prelude::*;
 use psgrasp_fusion::{FusionError, NormalGridView, TsdfVolume};
 use psgrasp_geometry::{DepthImage, GraspConfiguration};
 use psgrasp_ipc::{
-    now_ns, FrameHeader, FrameTracker, GraspRecord, MessageKind, NextPickRequest, NextPickResponse, PickRecord, Stage,
-    Stamp, StatusCode, TrackerEvent,
+    now_ns, FrameHeader, FrameTracker, GraspRecord, MessageKind, NextPickRequest, NextPickResponse,
+    PickRecord, Stage, Stamp, StatusCode, TrackerEvent,
 };
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
@@ -34,14 +34,19 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
     let cfg = ctx.config.clone();
     let names = ctx.node.names.clone();
     let mut source = source_from_config(&cfg)?;
-    let depth_pub = ctx.node.publisher::<f32>(&names.depth(), cfg.camera.intrinsics.pixel_count())?;
-    let announce_pub = ctx.node.publisher_with_buffer::<u8>(&names.announce(), 1, 1024)?;
+    let depth_pub = ctx
+        .node
+        .publisher::<f32>(&names.depth(), cfg.camera.intrinsics.pixel_count())?;
+    let announce_pub = ctx
+        .node
+        .publisher_with_buffer::<u8>(&names.announce(), 1, 1024)?;
 
     // Wait for the consumers so the first frames are not published into the void.
     let want_fusion = cfg.pipeline.workers.fusion as usize;
     let want_selection = cfg.pipeline.workers.selection as usize;
     let deadline = Instant::now() + Duration::from_millis(cfg.camera.wait_for_subscribers_ms);
-    while (depth_pub.subscriber_count() < want_fusion || announce_pub.subscriber_count() < want_selection)
+    while (depth_pub.subscriber_count() < want_fusion
+        || announce_pub.subscriber_count() < want_selection)
         && Instant::now() < deadline
     {
         if ctx.node.node().wait(Duration::from_millis(20)).is_err() {
@@ -49,11 +54,22 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
         }
     }
     if depth_pub.subscriber_count() < want_fusion {
-        tracing::warn!("publishing without all grid-fusion workers connected ({} of {want_fusion})", depth_pub.subscriber_count());
+        tracing::warn!(
+            "publishing without all grid-fusion workers connected ({} of {want_fusion})",
+            depth_pub.subscriber_count()
+        );
     }
-    tracing::info!("camera-ingest: source {} at {} Hz", source.name(), cfg.camera.rate_hz);
+    tracing::info!(
+        "camera-ingest: source {} at {} Hz",
+        source.name(),
+        cfg.camera.rate_hz
+    );
 
-    let period = if cfg.camera.rate_hz > 0.0 { Some(Duration::from_secs_f64(1.0 / cfg.camera.rate_hz)) } else { None };
+    let period = if cfg.camera.rate_hz > 0.0 {
+        Some(Duration::from_secs_f64(1.0 / cfg.camera.rate_hz))
+    } else {
+        None
+    };
     let fallback_camera = cfg.camera_model();
     let mut last_id = 0u64;
     let mut published = 0u64;
@@ -84,7 +100,14 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
             }
             Err(e) => Err(e),
         };
-        let mut announce = FrameHeader::new(MessageKind::Announce, frame_id, cfg.camera.source_id, &fallback_camera, &cfg.workspace, now_ns());
+        let mut announce = FrameHeader::new(
+            MessageKind::Announce,
+            frame_id,
+            cfg.camera.source_id,
+            &fallback_camera,
+            &cfg.workspace,
+            now_ns(),
+        );
         announce.stamp(Stamp::IngestPublished);
         announce_pub.send_header(announce)?;
         ctx.stats.frames_in += 1;
@@ -94,7 +117,14 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
             .and_then(|f| validate_frame(&f.depth, &f.camera).map(|_| f));
         match checked {
             Ok(f) => {
-                let mut h = FrameHeader::new(MessageKind::DepthFrame, frame_id, cfg.camera.source_id, &f.camera, &cfg.workspace, f.capture_ns);
+                let mut h = FrameHeader::new(
+                    MessageKind::DepthFrame,
+                    frame_id,
+                    cfg.camera.source_id,
+                    &f.camera,
+                    &cfg.workspace,
+                    f.capture_ns,
+                );
                 h.stamp(Stamp::IngestPublished);
                 depth_pub
                     .send_with::<()>(h, f.depth.data.len(), |buf| {
@@ -106,8 +136,15 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
             }
             Err((status, msg)) => {
                 tracing::warn!("frame {frame_id}: {msg}");
-                let mut h = FrameHeader::new(MessageKind::DepthFrame, frame_id, cfg.camera.source_id, &fallback_camera, &cfg.workspace, now_ns())
-                    .into_error(status, Stage::CameraIngest, &msg);
+                let mut h = FrameHeader::new(
+                    MessageKind::DepthFrame,
+                    frame_id,
+                    cfg.camera.source_id,
+                    &fallback_camera,
+                    &cfg.workspace,
+                    now_ns(),
+                )
+                .into_error(status, Stage::CameraIngest, &msg);
                 h.stamp(Stamp::IngestPublished);
                 depth_pub.send_header(h)?;
                 ctx.stats.errors += 1;
@@ -131,8 +168,16 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
 }
 
 /// Checks a source frame before it enters the pipeline; the status says what is wrong.
-fn validate_frame(depth: &DepthImage, camera: &psgrasp_geometry::CameraModel) -> Result<(), (StatusCode, String)> {
-    camera.validate().map_err(|e| (StatusCode::InvalidCamera, format!("camera intrinsics/pose: {e}")))?;
+fn validate_frame(
+    depth: &DepthImage,
+    camera: &psgrasp_geometry::CameraModel,
+) -> Result<(), (StatusCode, String)> {
+    camera.validate().map_err(|e| {
+        (
+            StatusCode::InvalidCamera,
+            format!("camera intrinsics/pose: {e}"),
+        )
+    })?;
     if depth.width != camera.intrinsics.width || depth.height != camera.intrinsics.height {
         return Err((
             StatusCode::InvalidDepth,
@@ -142,7 +187,9 @@ fn validate_frame(depth: &DepthImage, camera: &psgrasp_geometry::CameraModel) ->
             ),
         ));
     }
-    depth.require_valid().map_err(|e| (StatusCode::InvalidDepth, e.to_string()))
+    depth
+        .require_valid()
+        .map_err(|e| (StatusCode::InvalidDepth, e.to_string()))
 }
 
 fn fusion_status(e: &FusionError) -> StatusCode {
@@ -183,12 +230,16 @@ pub fn run_grid_fusion(args: StageArgs) -> Result<()> {
                 None // forwarded below as the error record it already is
             } else {
                 let camera = h.camera();
-                let result = DepthImage::from_metres(h.image_size[0], h.image_size[1], sample.payload().to_vec())
-                    .map_err(FusionError::from)
-                    .and_then(|depth| {
-                        volume.reset();
-                        volume.integrate(&depth, &camera)
-                    });
+                let result = DepthImage::from_metres(
+                    h.image_size[0],
+                    h.image_size[1],
+                    sample.payload().to_vec(),
+                )
+                .map_err(FusionError::from)
+                .and_then(|depth| {
+                    volume.reset();
+                    volume.integrate(&depth, &camera)
+                });
                 match result {
                     Ok(_) => {
                         let sent = grid_pub.send_with_stamp(
@@ -247,10 +298,19 @@ pub fn grid_view<'a>(h: &FrameHeader, payload: &'a [f32]) -> Result<NormalGridVi
     workspace.validate().map_err(|e| e.to_string())?;
     let n = workspace.voxel_count();
     if payload.len() != 4 * n {
-        return Err(format!("grid payload has {} values, header dims need {}", payload.len(), 4 * n));
+        return Err(format!(
+            "grid payload has {} values, header dims need {}",
+            payload.len(),
+            4 * n
+        ));
     }
     let (normals, tsdf) = payload.split_at(3 * n);
-    Ok(NormalGridView { workspace, normals, tsdf, truncation_m: h.truncation_m })
+    Ok(NormalGridView {
+        workspace,
+        normals,
+        tsdf,
+        truncation_m: h.truncation_m,
+    })
 }
 
 /// inference: normal grid → grasp configurations through the configured backend.
@@ -265,11 +325,17 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
     // analytic backend's contacts to the bin interior.
     let psgrasp_inference::BackendConfig::Analytic(a) = &mut backend_cfg;
     if a.contact_region.is_none() {
-        a.contact_region = Some(psgrasp_inference::ContactRegion::inside_bin(&cfg.bin, 0.005));
+        a.contact_region = Some(psgrasp_inference::ContactRegion::inside_bin(
+            &cfg.bin, 0.005,
+        ));
     }
     let mut backend = psgrasp_inference::backend_from_config(&backend_cfg, cfg.gripper)?;
     let mut last_stats = Instant::now();
-    tracing::info!("inference[{}] ready (backend {})", ctx.worker, backend.name());
+    tracing::info!(
+        "inference[{}] ready (backend {})",
+        ctx.worker,
+        backend.name()
+    );
     let exit = run_event_loop(&[grid_sub.listener()], Duration::from_millis(200), || {
         while let Some(sample) = grid_sub.receive()? {
             let h = *sample.user_header();
@@ -287,9 +353,13 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
             } else {
                 h.check(MessageKind::NormalGrid)
                     .map_err(|m| (StatusCode::ProtocolError, m))
-                    .and_then(|_| grid_view(&h, sample.payload()).map_err(|m| (StatusCode::ProtocolError, m)))
+                    .and_then(|_| {
+                        grid_view(&h, sample.payload()).map_err(|m| (StatusCode::ProtocolError, m))
+                    })
                     .and_then(|view| {
-                        backend.infer(&view, cfg.pipeline.seed).map_err(|e| (StatusCode::InferenceFailed, e.to_string()))
+                        backend
+                            .infer(&view, cfg.pipeline.seed)
+                            .map_err(|e| (StatusCode::InferenceFailed, e.to_string()))
                     })
             };
             drop(sample);
@@ -335,9 +405,17 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
     let names = ctx.node.names.clone();
     let grasps_sub = ctx.node.subscriber::<GraspRecord>(&names.grasps())?;
     let grid_sub = ctx.node.subscriber::<f32>(&names.grid())?;
-    let announce_sub = ctx.node.subscriber_with_buffer::<u8>(&names.announce(), 1024)?;
-    let picks_pub = ctx.node.publisher::<PickRecord>(&names.picks(), MAX_PICKS_PER_FRAME)?;
-    let mut tracker = FrameTracker::new(ctx.workers as u64, ctx.worker as u64, cfg.pipeline.loss_timeout_ms * 1_000_000);
+    let announce_sub = ctx
+        .node
+        .subscriber_with_buffer::<u8>(&names.announce(), 1024)?;
+    let picks_pub = ctx
+        .node
+        .publisher::<PickRecord>(&names.picks(), MAX_PICKS_PER_FRAME)?;
+    let mut tracker = FrameTracker::new(
+        ctx.workers as u64,
+        ctx.worker as u64,
+        cfg.pipeline.loss_timeout_ms * 1_000_000,
+    );
     let mut grids: BTreeMap<u64, (FrameHeader, Vec<f32>)> = BTreeMap::new();
     // Worker 0 answers "next pick" requests from the picks of all workers.
     let (mut server, server_inputs) = match ctx.worker {
@@ -347,7 +425,11 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
         }
         _ => (None, None),
     };
-    let mut listeners = vec![grasps_sub.listener(), announce_sub.listener(), grid_sub.listener()];
+    let mut listeners = vec![
+        grasps_sub.listener(),
+        announce_sub.listener(),
+        grid_sub.listener(),
+    ];
     if let Some((listener, picks)) = &server_inputs {
         listeners.push(listener);
         listeners.push(picks.listener());
@@ -375,14 +457,21 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
             ctx.stats.frames_in += 1;
             ctx.stats.last_frame_id = h.frame_id;
             if tracker.complete(h.frame_id) == TrackerEvent::Duplicate {
-                tracing::warn!("frame {}: result after it was reported lost; dropped", h.frame_id);
+                tracing::warn!(
+                    "frame {}: result after it was reported lost; dropped",
+                    h.frame_id
+                );
                 continue;
             }
             let started = Instant::now();
             let mut out = h.forwarded(MessageKind::SelectedGrasps);
             out.stamp(Stamp::SelectionStart);
             out.workers[2] = ctx.worker as u16;
-            let configs: Vec<GraspConfiguration> = sample.payload().iter().map(GraspConfiguration::from).collect();
+            let configs: Vec<GraspConfiguration> = sample
+                .payload()
+                .iter()
+                .map(GraspConfiguration::from)
+                .collect();
             drop(sample);
             let grid = grids.remove(&h.frame_id);
             let result: Result<Vec<PickRecord>, (StatusCode, String)> = if !h.is_ok() {
@@ -390,29 +479,37 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
             } else if let Err(m) = h.check(MessageKind::GraspSet) {
                 Err((StatusCode::ProtocolError, m))
             } else if let Some((gh, data)) = &grid {
-                grid_view(gh, data).map_err(|m| (StatusCode::ProtocolError, m)).and_then(|view| {
-                    let selection = psgrasp_selection::select(&configs, &view, &cfg.bin, &cfg.gripper, &cfg.selection)
+                grid_view(gh, data)
+                    .map_err(|m| (StatusCode::ProtocolError, m))
+                    .and_then(|view| {
+                        let selection = psgrasp_selection::select(
+                            &configs,
+                            &view,
+                            &cfg.bin,
+                            &cfg.gripper,
+                            &cfg.selection,
+                        )
                         .map_err(|e| (StatusCode::SelectionFailed, e.to_string()))?;
-                    Ok(selection
-                        .picks
-                        .iter()
-                        .take(MAX_PICKS_PER_FRAME)
-                        .enumerate()
-                        .map(|(rank, p)| {
-                            PickRecord::new(
-                                &p.workspace_from_gripper,
-                                &p.pregrasp,
-                                &configs[p.configuration_index].contact,
-                                p.width,
-                                p.quality,
-                                p.collision_score,
-                                p.configuration_index as u32,
-                                p.approach_index as u32,
-                                rank as u32,
-                            )
-                        })
-                        .collect())
-                })
+                        Ok(selection
+                            .picks
+                            .iter()
+                            .take(MAX_PICKS_PER_FRAME)
+                            .enumerate()
+                            .map(|(rank, p)| {
+                                PickRecord::new(
+                                    &p.workspace_from_gripper,
+                                    &p.pregrasp,
+                                    &configs[p.configuration_index].contact,
+                                    p.width,
+                                    p.quality,
+                                    p.collision_score,
+                                    p.configuration_index as u32,
+                                    p.approach_index as u32,
+                                    rank as u32,
+                                )
+                            })
+                            .collect())
+                    })
             } else {
                 Err((StatusCode::SelectionFailed, "normal grid of this frame never arrived (dropped under overload); no collision check possible".into()))
             };
@@ -437,9 +534,16 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
             ctx.stats.busy_ns += started.elapsed().as_nanos() as u64;
         }
         for lost in tracker.expire(now_ns()) {
-            let msg = format!("no result within {} ms: a stage died or dropped the frame under overload", cfg.pipeline.loss_timeout_ms);
+            let msg = format!(
+                "no result within {} ms: a stage died or dropped the frame under overload",
+                cfg.pipeline.loss_timeout_ms
+            );
             tracing::warn!("frame {lost}: {msg}");
-            let mut rec = FrameHeader { frame_id: lost, ..FrameHeader::default() }.into_error(StatusCode::Lost, Stage::GraspSelection, &msg);
+            let mut rec = FrameHeader {
+                frame_id: lost,
+                ..FrameHeader::default()
+            }
+            .into_error(StatusCode::Lost, Stage::GraspSelection, &msg);
             rec.kind = MessageKind::SelectedGrasps as u32;
             rec.grid_dims = cfg.workspace.dims;
             rec.voxel_size_m = cfg.workspace.voxel_size_m;
@@ -471,7 +575,13 @@ impl NextPickServer {
     #[allow(clippy::type_complexity)]
     fn new(
         ctx: &StageContext,
-    ) -> Result<(Self, (iceoryx2::port::listener::Listener<ipc::Service>, psgrasp_ipc::FrameSubscriber<PickRecord>))> {
+    ) -> Result<(
+        Self,
+        (
+            iceoryx2::port::listener::Listener<ipc::Service>,
+            psgrasp_ipc::FrameSubscriber<PickRecord>,
+        ),
+    )> {
         let names = &ctx.node.names;
         let name = ServiceName::new(&names.next_pick()).map_err(|e| anyhow::anyhow!("{e:?}"))?;
         let service = ctx
@@ -482,7 +592,10 @@ impl NextPickServer {
             .max_clients(16)
             .open_or_create()
             .map_err(|e| anyhow::anyhow!("next-pick service: {e:?}"))?;
-        let server = service.server_builder().create().map_err(|e| anyhow::anyhow!("next-pick server: {e:?}"))?;
+        let server = service
+            .server_builder()
+            .create()
+            .map_err(|e| anyhow::anyhow!("next-pick server: {e:?}"))?;
         let event = ctx
             .node
             .node()
@@ -490,9 +603,19 @@ impl NextPickServer {
             .event()
             .open_or_create()
             .map_err(|e| anyhow::anyhow!("next-pick event: {e:?}"))?;
-        let listener = event.listener_builder().create().map_err(|e| anyhow::anyhow!("next-pick listener: {e:?}"))?;
+        let listener = event
+            .listener_builder()
+            .create()
+            .map_err(|e| anyhow::anyhow!("next-pick listener: {e:?}"))?;
         let picks = ctx.node.subscriber::<PickRecord>(&names.picks())?;
-        Ok((Self { server, latest: None, cursor: 0 }, (listener, picks)))
+        Ok((
+            Self {
+                server,
+                latest: None,
+                cursor: 0,
+            },
+            (listener, picks),
+        ))
     }
 
     fn serve(&mut self, picks: &psgrasp_ipc::FrameSubscriber<PickRecord>) -> Result<()> {
@@ -503,22 +626,40 @@ impl NextPickServer {
                 self.cursor = 0;
             }
         }
-        while let Some(active) = self.server.receive().map_err(|e| anyhow::anyhow!("next-pick receive: {e:?}"))? {
+        while let Some(active) = self
+            .server
+            .receive()
+            .map_err(|e| anyhow::anyhow!("next-pick receive: {e:?}"))?
+        {
             let mode = active.payload().mode;
             let response = match &self.latest {
-                None => NextPickResponse { status: 1, ..Default::default() },
+                None => NextPickResponse {
+                    status: 1,
+                    ..Default::default()
+                },
                 Some((frame_id, picks)) => {
                     // mode 0: hand out the current pick; mode 1: the previous one failed, advance.
                     if mode == 1 {
                         self.cursor += 1;
                     }
                     match picks.get(self.cursor) {
-                        Some(p) => NextPickResponse { status: 0, reserved: 0, frame_id: *frame_id, pick: *p },
-                        None => NextPickResponse { status: 2, frame_id: *frame_id, ..Default::default() },
+                        Some(p) => NextPickResponse {
+                            status: 0,
+                            reserved: 0,
+                            frame_id: *frame_id,
+                            pick: *p,
+                        },
+                        None => NextPickResponse {
+                            status: 2,
+                            frame_id: *frame_id,
+                            ..Default::default()
+                        },
                     }
                 }
             };
-            active.send_copy(response).map_err(|e| anyhow::anyhow!("next-pick respond: {e:?}"))?;
+            active
+                .send_copy(response)
+                .map_err(|e| anyhow::anyhow!("next-pick respond: {e:?}"))?;
         }
         Ok(())
     }

@@ -38,9 +38,18 @@ pub struct RunReport {
 }
 
 /// Starts the pipeline of `cfg` and collects `frames` outcomes (or stops after `timeout`).
-pub fn run_frames(cfg: &PipelineConfig, frames: u64, timeout: Duration, bin_dir: &Path) -> Result<(RunReport, Supervisor)> {
+pub fn run_frames(
+    cfg: &PipelineConfig,
+    frames: u64,
+    timeout: Duration,
+    bin_dir: &Path,
+) -> Result<(RunReport, Supervisor)> {
     let path = write_temp_config(cfg, &cfg.pipeline.name)?;
-    let mut monitor = PipelineMonitor::connect(&format!("{}-monitor", cfg.pipeline.name), &cfg.pipeline.name, cfg.pipeline.channel)?;
+    let mut monitor = PipelineMonitor::connect(
+        &format!("{}-monitor", cfg.pipeline.name),
+        &cfg.pipeline.name,
+        cfg.pipeline.channel,
+    )?;
     let mut sup = Supervisor::start(&path, bin_dir, true)?;
     let start = Instant::now();
     let mut outcomes = BTreeMap::new();
@@ -53,14 +62,29 @@ pub fn run_frames(cfg: &PipelineConfig, frames: u64, timeout: Duration, bin_dir:
         }
     }
     monitor.drain_stats()?;
-    Ok((RunReport { outcomes, wall: start.elapsed() }, sup))
+    Ok((
+        RunReport {
+            outcomes,
+            wall: start.elapsed(),
+        },
+        sup,
+    ))
 }
 
 fn stage_spans(h: &FrameHeader) -> [(&'static str, f64); 5] {
     [
-        ("grid-fusion", h.span_ms(Stamp::FusionStart, Stamp::FusionEnd)),
-        ("inference", h.span_ms(Stamp::InferenceStart, Stamp::InferenceEnd)),
-        ("grasp-selection", h.span_ms(Stamp::SelectionStart, Stamp::SelectionEnd)),
+        (
+            "grid-fusion",
+            h.span_ms(Stamp::FusionStart, Stamp::FusionEnd),
+        ),
+        (
+            "inference",
+            h.span_ms(Stamp::InferenceStart, Stamp::InferenceEnd),
+        ),
+        (
+            "grasp-selection",
+            h.span_ms(Stamp::SelectionStart, Stamp::SelectionEnd),
+        ),
         ("transport+queue", {
             let total = h.span_ms(Stamp::IngestPublished, Stamp::SelectionEnd);
             let work = h.span_ms(Stamp::FusionStart, Stamp::FusionEnd)
@@ -68,13 +92,20 @@ fn stage_spans(h: &FrameHeader) -> [(&'static str, f64); 5] {
                 + h.span_ms(Stamp::SelectionStart, Stamp::SelectionEnd);
             (total - work).max(0.0)
         }),
-        ("end-to-end", h.span_ms(Stamp::IngestPublished, Stamp::SelectionEnd)),
+        (
+            "end-to-end",
+            h.span_ms(Stamp::IngestPublished, Stamp::SelectionEnd),
+        ),
     ]
 }
 
 /// Prints the stress report as Markdown tables.
 pub fn print_report(report: &RunReport, frames: u64) {
-    let ok: Vec<&FrameOutcome> = report.outcomes.values().filter(|o| o.status() == StatusCode::Ok).collect();
+    let ok: Vec<&FrameOutcome> = report
+        .outcomes
+        .values()
+        .filter(|o| o.status() == StatusCode::Ok)
+        .collect();
     let mut by_status: BTreeMap<String, usize> = BTreeMap::new();
     for o in report.outcomes.values() {
         *by_status.entry(format!("{:?}", o.status())).or_default() += 1;
@@ -93,15 +124,30 @@ pub fn print_report(report: &RunReport, frames: u64) {
     );
     println!("\nOutcomes by status: {by_status:?}");
     println!("\n| span (ms) | p50 | p90 | p99 | max |\n|---|---|---|---|---|");
-    let names = ["grid-fusion", "inference", "grasp-selection", "transport+queue", "end-to-end"];
+    let names = [
+        "grid-fusion",
+        "inference",
+        "grasp-selection",
+        "transport+queue",
+        "end-to-end",
+    ];
     for (i, name) in names.iter().enumerate() {
         let mut v: Vec<f64> = ok.iter().map(|o| stage_spans(&o.header)[i].1).collect();
         v.sort_by(f64::total_cmp);
-        println!("| {name} | {:.2} | {:.2} | {:.2} | {:.2} |", percentile(&v, 50.0), percentile(&v, 90.0), percentile(&v, 99.0), v.last().copied().unwrap_or(f64::NAN));
+        println!(
+            "| {name} | {:.2} | {:.2} | {:.2} | {:.2} |",
+            percentile(&v, 50.0),
+            percentile(&v, 90.0),
+            percentile(&v, 99.0),
+            v.last().copied().unwrap_or(f64::NAN)
+        );
     }
     let picks: Vec<usize> = ok.iter().map(|o| o.picks.len()).collect();
     if !picks.is_empty() {
-        println!("\nPicks per frame: mean {:.1}", picks.iter().sum::<usize>() as f64 / picks.len() as f64);
+        println!(
+            "\nPicks per frame: mean {:.1}",
+            picks.iter().sum::<usize>() as f64 / picks.len() as f64
+        );
     }
 }
 
@@ -130,14 +176,21 @@ pub fn compare_transports(sizes: &[usize], iterations: usize) -> Result<Vec<Tran
 
 fn iceoryx_latency(bytes: usize, iterations: usize) -> Result<TransportFigure> {
     let pipeline = format!("xport-{}-{bytes}", std::process::id());
-    let channel = ChannelConfig { drop_policy: psgrasp_ipc::DropPolicy::Block, ..ChannelConfig::default() };
+    let channel = ChannelConfig {
+        drop_policy: psgrasp_ipc::DropPolicy::Block,
+        ..ChannelConfig::default()
+    };
     let n = bytes / 4;
     let src = vec![1.0f32; n];
     let consumer_pipeline = pipeline.clone();
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let (ack_tx, ack_rx) = std::sync::mpsc::channel::<f64>();
     let consumer = std::thread::spawn(move || -> Result<()> {
-        let node = PipelineNode::new(&format!("{consumer_pipeline}-rx"), &consumer_pipeline, channel)?;
+        let node = PipelineNode::new(
+            &format!("{consumer_pipeline}-rx"),
+            &consumer_pipeline,
+            channel,
+        )?;
         let sub = node.subscriber::<f32>(&node.names.grid())?;
         ready_tx.send(())?;
         let mut got = 0;
@@ -162,13 +215,22 @@ fn iceoryx_latency(bytes: usize, iterations: usize) -> Result<TransportFigure> {
     }
     let mut lat = Vec::with_capacity(iterations);
     for _ in 0..iterations {
-        let header = FrameHeader { stamps_ns: [psgrasp_ipc::now_ns(), 0, 0, 0, 0, 0, 0, 0], ..FrameHeader::default() };
+        let header = FrameHeader {
+            stamps_ns: [psgrasp_ipc::now_ns(), 0, 0, 0, 0, 0, 0, 0],
+            ..FrameHeader::default()
+        };
         publisher.send_slice(header, &src)?;
         lat.push(ack_rx.recv_timeout(Duration::from_secs(5))?);
     }
-    consumer.join().map_err(|_| anyhow::anyhow!("consumer thread panicked"))??;
+    consumer
+        .join()
+        .map_err(|_| anyhow::anyhow!("consumer thread panicked"))??;
     lat.sort_by(f64::total_cmp);
-    Ok(TransportFigure { transport: "iceoryx2 (zero-copy, WaitSet wake-up)", bytes, latencies_us: lat })
+    Ok(TransportFigure {
+        transport: "iceoryx2 (zero-copy, WaitSet wake-up)",
+        bytes,
+        latencies_us: lat,
+    })
 }
 
 fn unix_socket_latency(bytes: usize, iterations: usize) -> Result<TransportFigure> {
@@ -190,9 +252,15 @@ fn unix_socket_latency(bytes: usize, iterations: usize) -> Result<TransportFigur
         tx.write_all(&msg)?;
         lat.push(ack_rx.recv_timeout(Duration::from_secs(5))?);
     }
-    consumer.join().map_err(|_| anyhow::anyhow!("consumer thread panicked"))??;
+    consumer
+        .join()
+        .map_err(|_| anyhow::anyhow!("consumer thread panicked"))??;
     lat.sort_by(f64::total_cmp);
-    Ok(TransportFigure { transport: "Unix socket (copying)", bytes, latencies_us: lat })
+    Ok(TransportFigure {
+        transport: "Unix socket (copying)",
+        bytes,
+        latencies_us: lat,
+    })
 }
 
 /// Prints the transport comparison table.

@@ -13,11 +13,18 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 fn bin_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_BIN_EXE_psgrasp-grid-fusion")).parent().unwrap().to_path_buf()
+    PathBuf::from(env!("CARGO_BIN_EXE_psgrasp-grid-fusion"))
+        .parent()
+        .unwrap()
+        .to_path_buf()
 }
 
 fn test_config(tag: &str) -> PipelineConfig {
-    let mut cfg = PipelineConfig::load(&PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/config/default.toml"))).unwrap();
+    let mut cfg = PipelineConfig::load(&PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/config/default.toml"
+    )))
+    .unwrap();
     cfg.pipeline.name = format!("t-{tag}-{}", std::process::id());
     cfg.camera.synthetic.objects = 4;
     cfg.camera.rate_hz = 0.0;
@@ -50,25 +57,53 @@ fn four_processes_turn_every_frame_into_picks() {
     cfg.pipeline.channel.drop_policy = DropPolicy::Block;
     let (report, mut sup) = run_frames(&cfg, 4, Duration::from_secs(240), &bin_dir()).unwrap();
     sup.shutdown(Duration::from_secs(3));
-    assert_eq!(report.outcomes.len(), 4, "every frame must come back: {:?}", report.outcomes.keys());
+    assert_eq!(
+        report.outcomes.len(),
+        4,
+        "every frame must come back: {:?}",
+        report.outcomes.keys()
+    );
     for o in report.outcomes.values() {
-        assert_eq!(o.status(), StatusCode::Ok, "frame {}: {}", o.frame_id(), o.header.error_text());
+        assert_eq!(
+            o.status(),
+            StatusCode::Ok,
+            "frame {}: {}",
+            o.frame_id(),
+            o.header.error_text()
+        );
         let h = &o.header;
-        let order = [Stamp::IngestPublished, Stamp::FusionStart, Stamp::FusionEnd, Stamp::InferenceStart, Stamp::InferenceEnd, Stamp::SelectionStart, Stamp::SelectionEnd];
+        let order = [
+            Stamp::IngestPublished,
+            Stamp::FusionStart,
+            Stamp::FusionEnd,
+            Stamp::InferenceStart,
+            Stamp::InferenceEnd,
+            Stamp::SelectionStart,
+            Stamp::SelectionEnd,
+        ];
         for w in order.windows(2) {
-            assert!(h.stamps_ns[w[0] as usize] <= h.stamps_ns[w[1] as usize], "stamps out of order: {:?}", h.stamps_ns);
+            assert!(
+                h.stamps_ns[w[0] as usize] <= h.stamps_ns[w[1] as usize],
+                "stamps out of order: {:?}",
+                h.stamps_ns
+            );
         }
         for p in &o.picks {
             assert!(p.quality >= cfg.selection.min_quality - 1e-6);
             // Picks approach from above and the pre-grasp lies behind the grasp along the approach.
             let a = p.approach();
             assert!(a.z < 0.0, "approach {a:?} points up");
-            let back = nalgebra::Vector3::from(p.pregrasp_position) - nalgebra::Vector3::from(p.position);
+            let back =
+                nalgebra::Vector3::from(p.pregrasp_position) - nalgebra::Vector3::from(p.position);
             assert!(back.dot(&a) < 0.0);
         }
     }
     let picks: usize = report.outcomes.values().map(|o| o.picks.len()).sum();
-    assert!(picks >= 1, "bins with {} objects must yield executable picks", cfg.camera.synthetic.objects);
+    assert!(
+        picks >= 1,
+        "bins with {} objects must yield executable picks",
+        cfg.camera.synthetic.objects
+    );
     // Clean shutdown leaves no node (and so no shared memory) of this pipeline behind.
     assert_eq!(nodes_of(&cfg.pipeline.name), 0);
 }
@@ -81,7 +116,12 @@ fn killing_inference_restarts_it_and_reports_lost_frames() {
     cfg.camera.synthetic.frames_per_scene = 1000;
     cfg.pipeline.loss_timeout_ms = 1500;
     let path = write_temp_config(&cfg, &cfg.pipeline.name).unwrap();
-    let mut monitor = PipelineMonitor::connect(&format!("{}-monitor", cfg.pipeline.name), &cfg.pipeline.name, cfg.pipeline.channel).unwrap();
+    let mut monitor = PipelineMonitor::connect(
+        &format!("{}-monitor", cfg.pipeline.name),
+        &cfg.pipeline.name,
+        cfg.pipeline.channel,
+    )
+    .unwrap();
     let mut sup = Supervisor::start(&path, &bin_dir(), true).unwrap();
     let mut outcomes = BTreeMap::new();
     let start = Instant::now();
@@ -98,16 +138,41 @@ fn killing_inference_restarts_it_and_reports_lost_frames() {
             std::thread::sleep(Duration::from_millis(400));
         }
     }
-    let restarts = sup.processes.iter().find(|p| p.stage == Stage::Inference).unwrap().restart_count;
+    let restarts = sup
+        .processes
+        .iter()
+        .find(|p| p.stage == Stage::Inference)
+        .unwrap()
+        .restart_count;
     sup.shutdown(Duration::from_secs(3));
     drop(monitor);
     assert!(killed);
-    assert_eq!(restarts, 1, "the supervisor must restart the killed stage once");
-    assert_eq!(outcomes.len(), 40, "every frame ends as picks or an error record");
-    let lost = outcomes.values().filter(|o| o.status() == StatusCode::Lost).count();
-    let ok_after: usize = outcomes.values().skip_while(|o| o.status() != StatusCode::Lost).filter(|o| o.status() == StatusCode::Ok).count();
-    assert!(lost >= 1, "frames in flight while inference was down must be reported lost");
-    assert!(ok_after >= 1, "the restarted stage must produce results again");
+    assert_eq!(
+        restarts, 1,
+        "the supervisor must restart the killed stage once"
+    );
+    assert_eq!(
+        outcomes.len(),
+        40,
+        "every frame ends as picks or an error record"
+    );
+    let lost = outcomes
+        .values()
+        .filter(|o| o.status() == StatusCode::Lost)
+        .count();
+    let ok_after: usize = outcomes
+        .values()
+        .skip_while(|o| o.status() != StatusCode::Lost)
+        .filter(|o| o.status() == StatusCode::Ok)
+        .count();
+    assert!(
+        lost >= 1,
+        "frames in flight while inference was down must be reported lost"
+    );
+    assert!(
+        ok_after >= 1,
+        "the restarted stage must produce results again"
+    );
     assert_eq!(nodes_of(&cfg.pipeline.name), 0, "no residue after shutdown");
 }
 
@@ -122,23 +187,41 @@ fn bad_frames_end_as_error_records() {
     save_depth_npy(&dir.join("0-good.npy"), &good).unwrap();
     let w = good.width;
     let h = good.height;
-    save_depth_npy(&dir.join("1-nan.npy"), &psgrasp_geometry::DepthImage::from_metres(w, h, vec![f32::NAN; (w * h) as usize]).unwrap()).unwrap();
-    save_depth_npy(&dir.join("2-zero.npy"), &psgrasp_geometry::DepthImage::from_metres(w, h, vec![0.0; (w * h) as usize]).unwrap()).unwrap();
-    save_depth_npy(&dir.join("3-small.npy"), &psgrasp_geometry::DepthImage::from_metres(10, 10, vec![0.5; 100]).unwrap()).unwrap();
+    save_depth_npy(
+        &dir.join("1-nan.npy"),
+        &psgrasp_geometry::DepthImage::from_metres(w, h, vec![f32::NAN; (w * h) as usize]).unwrap(),
+    )
+    .unwrap();
+    save_depth_npy(
+        &dir.join("2-zero.npy"),
+        &psgrasp_geometry::DepthImage::from_metres(w, h, vec![0.0; (w * h) as usize]).unwrap(),
+    )
+    .unwrap();
+    save_depth_npy(
+        &dir.join("3-small.npy"),
+        &psgrasp_geometry::DepthImage::from_metres(10, 10, vec![0.5; 100]).unwrap(),
+    )
+    .unwrap();
     std::fs::write(dir.join("4-corrupt.npy"), b"\x93NUMPY garbage").unwrap();
     let cam = cfg.camera_model();
     let q = cam.workspace_from_camera.rotation.coords;
     let t = cam.workspace_from_camera.translation.vector;
     cfg.camera.source = SourceKind::Replay;
     cfg.camera.replay.path = dir.clone();
-    cfg.camera.pose = Some(PoseConfig { translation: [t.x, t.y, t.z], rotation_xyzw: [q[0], q[1], q[2], q[3]] });
+    cfg.camera.pose = Some(PoseConfig {
+        translation: [t.x, t.y, t.z],
+        rotation_xyzw: [q[0], q[1], q[2], q[3]],
+    });
     cfg.camera.frames = 5;
     cfg.pipeline.channel.drop_policy = DropPolicy::Block;
     let (report, mut sup) = run_frames(&cfg, 5, Duration::from_secs(120), &bin_dir()).unwrap();
     sup.shutdown(Duration::from_secs(3));
     std::fs::remove_dir_all(&dir).ok();
-    let statuses: Vec<(StatusCode, Option<Stage>, String)> =
-        report.outcomes.values().map(|o| (o.status(), o.error_stage(), o.header.error_text())).collect();
+    let statuses: Vec<(StatusCode, Option<Stage>, String)> = report
+        .outcomes
+        .values()
+        .map(|o| (o.status(), o.error_stage(), o.header.error_text()))
+        .collect();
     assert_eq!(statuses.len(), 5, "{statuses:?}");
     assert_eq!(statuses[0].0, StatusCode::Ok, "{statuses:?}");
     for (status, stage, text) in &statuses[1..] {
@@ -146,7 +229,11 @@ fn bad_frames_end_as_error_records() {
         assert_eq!(*stage, Some(Stage::CameraIngest));
         assert!(!text.is_empty());
     }
-    assert!(statuses[1].2.contains("no valid pixel"), "{}", statuses[1].2);
+    assert!(
+        statuses[1].2.contains("no valid pixel"),
+        "{}",
+        statuses[1].2
+    );
     assert!(statuses[3].2.contains("10×10"), "{}", statuses[3].2);
     assert!(statuses[4].2.contains("npy"), "{}", statuses[4].2);
 }
@@ -157,15 +244,27 @@ fn malformed_config_is_refused_with_a_clear_message() {
     std::fs::create_dir_all(&dir).unwrap();
     let bad = dir.join("bad.toml");
     std::fs::write(&bad, "[pipeline.workers]\ninference = 0\n").unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_psgrasp")).arg("check-config").arg(&bad).output().unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_psgrasp"))
+        .arg("check-config")
+        .arg(&bad)
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("pipeline.workers.inference"), "{err}");
     // A stage binary given the same file exits with an error instead of running.
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_psgrasp-inference")).arg("--config").arg(&bad).output().unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_psgrasp-inference"))
+        .arg("--config")
+        .arg(&bad)
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     std::fs::write(&bad, "this is not toml = = \n").unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_psgrasp")).arg("check-config").arg(&bad).output().unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_psgrasp"))
+        .arg("check-config")
+        .arg(&bad)
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("malformed config"));
     std::fs::remove_dir_all(&dir).ok();

@@ -9,7 +9,11 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 #[derive(Parser)]
-#[command(name = "psgrasp", version, about = "Dense 6-DoF grasp detection for bin picking")]
+#[command(
+    name = "psgrasp",
+    version,
+    about = "Dense 6-DoF grasp detection for bin picking"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -88,8 +92,19 @@ fn main() -> std::process::ExitCode {
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Up { config } => up(config),
-        Command::Demo { config, frames, seed, top } => demo(config, frames, seed, top),
-        Command::Stress { config, frames, rate, inference_workers, transport_iterations } => {
+        Command::Demo {
+            config,
+            frames,
+            seed,
+            top,
+        } => demo(config, frames, seed, top),
+        Command::Stress {
+            config,
+            frames,
+            rate,
+            inference_workers,
+            transport_iterations,
+        } => {
             let mut cfg = PipelineConfig::load(&config)?;
             cfg.pipeline.name = format!("stress-{}", std::process::id());
             cfg.camera.frames = frames;
@@ -112,25 +127,44 @@ fn run(cli: Cli) -> Result<()> {
             sup.shutdown(Duration::from_secs(3));
             stress::print_report(&report, frames);
             if transport_iterations > 0 {
-                let figures = stress::compare_transports(&[1_228_800, 4 * 262_144 * 4], transport_iterations)?;
+                let figures = stress::compare_transports(
+                    &[1_228_800, 4 * 262_144 * 4],
+                    transport_iterations,
+                )?;
                 stress::print_transport_table(&figures);
             }
             Ok(())
         }
         Command::CheckConfig { config } => {
             let cfg = PipelineConfig::load(&config)?;
-            println!("# {} is valid; effective configuration:\n{}", config.display(), cfg.to_toml());
+            println!(
+                "# {} is valid; effective configuration:\n{}",
+                config.display(),
+                cfg.to_toml()
+            );
             Ok(())
         }
         Command::NextPick { config, failed } => {
             let cfg = PipelineConfig::load(&config)?;
-            let node = PipelineNode::new(&format!("{}-cli-{}", cfg.pipeline.name, std::process::id()), &cfg.pipeline.name, cfg.pipeline.channel)?;
+            let node = PipelineNode::new(
+                &format!("{}-cli-{}", cfg.pipeline.name, std::process::id()),
+                &cfg.pipeline.name,
+                cfg.pipeline.channel,
+            )?;
             let client = psgrasp::client::PickClient::connect(&node)?;
             match client.next_pick(failed, Duration::from_secs(2))? {
-                None => anyhow::bail!("no answer from grasp-selection within 2 s: is `psgrasp up` running?"),
+                None => anyhow::bail!(
+                    "no answer from grasp-selection within 2 s: is `psgrasp up` running?"
+                ),
                 Some(r) if r.status == 1 => println!("no frame processed yet"),
-                Some(r) if r.status == 2 => println!("all picks of frame {} used; wait for the next frame", r.frame_id),
-                Some(r) => println!("{}", serde_json::to_string_pretty(&pick_json(r.frame_id, &r.pick))?),
+                Some(r) if r.status == 2 => println!(
+                    "all picks of frame {} used; wait for the next frame",
+                    r.frame_id
+                ),
+                Some(r) => println!(
+                    "{}",
+                    serde_json::to_string_pretty(&pick_json(r.frame_id, &r.pick))?
+                ),
             }
             Ok(())
         }
@@ -152,9 +186,17 @@ fn pick_json(frame_id: u64, p: &psgrasp_ipc::PickRecord) -> serde_json::Value {
 
 fn up(config: PathBuf) -> Result<()> {
     let cfg = PipelineConfig::load(&config)?;
-    let node = PipelineNode::new(&format!("{}-launcher", cfg.pipeline.name), &cfg.pipeline.name, cfg.pipeline.channel)?;
+    let node = PipelineNode::new(
+        &format!("{}-launcher", cfg.pipeline.name),
+        &cfg.pipeline.name,
+        cfg.pipeline.channel,
+    )?;
     let mut sup = Supervisor::start(&config, &default_bin_dir(), false)?;
-    println!("psgrasp pipeline '{}' up ({} processes); Ctrl-C to stop", cfg.pipeline.name, sup.processes.len());
+    println!(
+        "psgrasp pipeline '{}' up ({} processes); Ctrl-C to stop",
+        cfg.pipeline.name,
+        sup.processes.len()
+    );
     while node.node().wait(Duration::from_millis(200)).is_ok() {
         for e in sup.poll()? {
             println!("{e}");
@@ -169,7 +211,8 @@ fn up(config: PathBuf) -> Result<()> {
 }
 
 fn demo(config: PathBuf, frames: u64, seed: u64, top: usize) -> Result<()> {
-    let mut cfg = PipelineConfig::load(&config).with_context(|| format!("loading {}", config.display()))?;
+    let mut cfg =
+        PipelineConfig::load(&config).with_context(|| format!("loading {}", config.display()))?;
     cfg.pipeline.name = format!("demo-{}", std::process::id());
     cfg.camera.source = psgrasp_config::SourceKind::Synthetic;
     cfg.camera.frames = frames;
@@ -179,13 +222,24 @@ fn demo(config: PathBuf, frames: u64, seed: u64, top: usize) -> Result<()> {
         "psgrasp demo: {} synthetic bin scene(s) with {} objects, 4 processes over iceoryx2 shared memory…",
         frames, cfg.camera.synthetic.objects
     );
-    let (report, mut sup) = stress::run_frames(&cfg, frames, Duration::from_secs(300), &default_bin_dir())?;
+    let (report, mut sup) =
+        stress::run_frames(&cfg, frames, Duration::from_secs(300), &default_bin_dir())?;
     sup.shutdown(Duration::from_secs(3));
-    anyhow::ensure!(report.outcomes.len() as u64 == frames, "only {} of {frames} frames came back", report.outcomes.len());
+    anyhow::ensure!(
+        report.outcomes.len() as u64 == frames,
+        "only {} of {frames} frames came back",
+        report.outcomes.len()
+    );
     for o in report.outcomes.values() {
         let h = &o.header;
         if o.status() != StatusCode::Ok {
-            println!("\nframe {}: error record {:?} from {:?}: {}", o.frame_id(), o.status(), o.error_stage(), h.error_text());
+            println!(
+                "\nframe {}: error record {:?} from {:?}: {}",
+                o.frame_id(),
+                o.status(),
+                o.error_stage(),
+                h.error_text()
+            );
             continue;
         }
         println!(
@@ -203,7 +257,16 @@ fn demo(config: PathBuf, frames: u64, seed: u64, top: usize) -> Result<()> {
             let a = p.approach();
             println!(
                 "| {} | ({:.3}, {:.3}, {:.3}) | ({:+.2}, {:+.2}, {:+.2}) | {:.1} | {:.2} | {:.2} |",
-                p.rank, p.position[0], p.position[1], p.position[2], a.x, a.y, a.z, p.width * 1000.0, p.quality, p.collision_score
+                p.rank,
+                p.position[0],
+                p.position[1],
+                p.position[2],
+                a.x,
+                a.y,
+                a.z,
+                p.width * 1000.0,
+                p.quality,
+                p.collision_score
             );
         }
     }

@@ -123,7 +123,11 @@ pub struct WorkerCounts {
 
 impl Default for WorkerCounts {
     fn default() -> Self {
-        Self { fusion: 1, inference: 1, selection: 1 }
+        Self {
+            fusion: 1,
+            inference: 1,
+            selection: 1,
+        }
     }
 }
 
@@ -197,7 +201,12 @@ pub struct SyntheticSource {
 
 impl Default for SyntheticSource {
     fn default() -> Self {
-        Self { seed: 7, objects: 8, frames_per_scene: 1, noise: false }
+        Self {
+            seed: 7,
+            objects: 8,
+            frames_per_scene: 1,
+            noise: false,
+        }
     }
 }
 
@@ -239,13 +248,19 @@ impl PoseConfig {
 impl PipelineConfig {
     /// Loads and validates a TOML file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.into(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.into(),
+            source,
+        })?;
         Self::parse(&text, path)
     }
 
     /// Parses and validates TOML text (`origin` names it in errors).
     pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
-        let cfg: Self = toml::from_str(text).map_err(|source| ConfigError::Parse { path: origin.into(), source })?;
+        let cfg: Self = toml::from_str(text).map_err(|source| ConfigError::Parse {
+            path: origin.into(),
+            source,
+        })?;
         cfg.validate(origin)?;
         Ok(cfg)
     }
@@ -257,29 +272,63 @@ impl PipelineConfig {
 
     /// Checks ranges and cross-field consistency.
     pub fn validate(&self, origin: &Path) -> Result<(), ConfigError> {
-        let bad = |field: &'static str, reason: String| ConfigError::Invalid { path: origin.into(), field, reason };
+        let bad = |field: &'static str, reason: String| ConfigError::Invalid {
+            path: origin.into(),
+            field,
+            reason,
+        };
         let p = &self.pipeline;
-        if p.name.is_empty() || !p.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
-            return Err(bad("pipeline.name", format!("{:?} must be non-empty [A-Za-z0-9_-]", p.name)));
+        if p.name.is_empty()
+            || !p
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        {
+            return Err(bad(
+                "pipeline.name",
+                format!("{:?} must be non-empty [A-Za-z0-9_-]", p.name),
+            ));
         }
         if p.name.len() > 48 {
             return Err(bad("pipeline.name", "longer than 48 characters".into()));
         }
         let w = p.workers;
-        for (field, n) in [("pipeline.workers.fusion", w.fusion), ("pipeline.workers.inference", w.inference), ("pipeline.workers.selection", w.selection)] {
+        for (field, n) in [
+            ("pipeline.workers.fusion", w.fusion),
+            ("pipeline.workers.inference", w.inference),
+            ("pipeline.workers.selection", w.selection),
+        ] {
             if n == 0 || n as usize > p.channel.max_publishers {
-                return Err(bad(field, format!("{n} must be in 1..={} (channel.max_publishers)", p.channel.max_publishers)));
+                return Err(bad(
+                    field,
+                    format!(
+                        "{n} must be in 1..={} (channel.max_publishers)",
+                        p.channel.max_publishers
+                    ),
+                ));
             }
         }
         if p.channel.subscriber_buffer == 0 || p.channel.subscriber_buffer > 1024 {
-            return Err(bad("pipeline.channel.subscriber_buffer", format!("{} must be in 1..=1024", p.channel.subscriber_buffer)));
+            return Err(bad(
+                "pipeline.channel.subscriber_buffer",
+                format!("{} must be in 1..=1024", p.channel.subscriber_buffer),
+            ));
         }
         let max_subs_needed = (w.fusion.max(w.inference).max(w.selection) + 2) as usize;
         if p.channel.max_subscribers < max_subs_needed {
-            return Err(bad("pipeline.channel.max_subscribers", format!("{} < {max_subs_needed} (workers + monitors)", p.channel.max_subscribers)));
+            return Err(bad(
+                "pipeline.channel.max_subscribers",
+                format!(
+                    "{} < {max_subs_needed} (workers + monitors)",
+                    p.channel.max_subscribers
+                ),
+            ));
         }
         if p.loss_timeout_ms < 100 {
-            return Err(bad("pipeline.loss_timeout_ms", "must be at least 100 ms".into()));
+            return Err(bad(
+                "pipeline.loss_timeout_ms",
+                "must be at least 100 ms".into(),
+            ));
         }
         if p.stats_interval_ms == 0 {
             return Err(bad("pipeline.stats_interval_ms", "must be > 0".into()));
@@ -288,38 +337,75 @@ impl PipelineConfig {
         if !(c.rate_hz.is_finite() && c.rate_hz >= 0.0) {
             return Err(bad("camera.rate_hz", format!("{} must be ≥ 0", c.rate_hz)));
         }
-        c.intrinsics.validate().map_err(|e| bad("camera.intrinsics", e.to_string()))?;
+        c.intrinsics
+            .validate()
+            .map_err(|e| bad("camera.intrinsics", e.to_string()))?;
         if let Some(pose) = &c.pose {
-            let finite = pose.translation.iter().chain(pose.rotation_xyzw.iter()).all(|v| v.is_finite());
+            let finite = pose
+                .translation
+                .iter()
+                .chain(pose.rotation_xyzw.iter())
+                .all(|v| v.is_finite());
             let norm = pose.rotation_xyzw.iter().map(|v| v * v).sum::<f32>().sqrt();
             if !finite || (norm - 1.0).abs() > 1e-2 {
-                return Err(bad("camera.pose", "translation must be finite and rotation_xyzw a unit quaternion".into()));
+                return Err(bad(
+                    "camera.pose",
+                    "translation must be finite and rotation_xyzw a unit quaternion".into(),
+                ));
             }
         }
         if c.source == SourceKind::Replay && c.replay.path.as_os_str().is_empty() {
-            return Err(bad("camera.replay.path", "replay source needs a path".into()));
+            return Err(bad(
+                "camera.replay.path",
+                "replay source needs a path".into(),
+            ));
         }
         if let Some(u) = c.replay.depth_unit_m {
             if !(u.is_finite() && u > 0.0) {
-                return Err(bad("camera.replay.depth_unit_m", format!("{u} must be > 0")));
+                return Err(bad(
+                    "camera.replay.depth_unit_m",
+                    format!("{u} must be > 0"),
+                ));
             }
         }
-        if c.source == SourceKind::Synthetic && (c.synthetic.objects == 0 || c.synthetic.objects > 64) {
-            return Err(bad("camera.synthetic.objects", format!("{} must be in 1..=64", c.synthetic.objects)));
+        if c.source == SourceKind::Synthetic
+            && (c.synthetic.objects == 0 || c.synthetic.objects > 64)
+        {
+            return Err(bad(
+                "camera.synthetic.objects",
+                format!("{} must be in 1..=64", c.synthetic.objects),
+            ));
         }
         if c.synthetic.frames_per_scene == 0 {
-            return Err(bad("camera.synthetic.frames_per_scene", "must be ≥ 1".into()));
+            return Err(bad(
+                "camera.synthetic.frames_per_scene",
+                "must be ≥ 1".into(),
+            ));
         }
-        self.workspace.validate().map_err(|e| bad("workspace", e.to_string()))?;
+        self.workspace
+            .validate()
+            .map_err(|e| bad("workspace", e.to_string()))?;
         let g = &self.gripper;
         let extra = [g.max_opening_m, g.tip_beyond_tcp_m];
-        let mut dims = g.finger_size_m.iter().chain(g.palm_size_m.iter()).chain(extra.iter());
+        let mut dims = g
+            .finger_size_m
+            .iter()
+            .chain(g.palm_size_m.iter())
+            .chain(extra.iter());
         if !dims.all(|v| v.is_finite() && *v >= 0.0) || g.max_opening_m <= 0.0 {
-            return Err(bad("gripper", "sizes must be finite, non-negative, max_opening_m > 0".into()));
+            return Err(bad(
+                "gripper",
+                "sizes must be finite, non-negative, max_opening_m > 0".into(),
+            ));
         }
         let b = &self.bin;
-        if !b.inner_size_m.iter().all(|v| v.is_finite() && *v > 0.0) || !(b.wall_thickness_m.is_finite() && b.wall_thickness_m >= 0.0) {
-            return Err(bad("bin", "inner_size_m must be > 0 and wall_thickness_m ≥ 0".into()));
+        let sizes_ok = b.inner_size_m.iter().all(|v| v.is_finite() && *v > 0.0);
+        let wall_ok = b.wall_thickness_m.is_finite() && b.wall_thickness_m >= 0.0;
+        if !(sizes_ok && wall_ok) {
+            return Err(bad(
+                "bin",
+                "inner_size_m must be > 0 and wall_thickness_m ≥ 0".into(),
+            ));
         }
         Ok(())
     }
@@ -328,7 +414,10 @@ impl PipelineConfig {
     /// top-down above the bin centre at `height_above_rim_m`.
     pub fn camera_model(&self) -> CameraModel {
         match &self.camera.pose {
-            Some(p) => CameraModel { intrinsics: self.camera.intrinsics, workspace_from_camera: p.isometry() },
+            Some(p) => CameraModel {
+                intrinsics: self.camera.intrinsics,
+                workspace_from_camera: p.isometry(),
+            },
             None => {
                 let c = self.bin.floor_center;
                 CameraModel::top_down(

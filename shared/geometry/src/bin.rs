@@ -19,14 +19,21 @@ impl Default for BinModel {
     /// The paper's 600×400×280 mm bin, centred on a default 64³ × 9 mm workspace, floor 18 mm
     /// (two voxels) above the grid's bottom so the floor surface lies inside the grid.
     fn default() -> Self {
-        Self { inner_size_m: [0.6, 0.4, 0.28], wall_thickness_m: 0.01, floor_center: Point3::new(0.288, 0.288, 0.018) }
+        Self {
+            inner_size_m: [0.6, 0.4, 0.28],
+            wall_thickness_m: 0.01,
+            floor_center: Point3::new(0.288, 0.288, 0.018),
+        }
     }
 }
 
 impl BinModel {
     /// The smaller bin used for scene diversity (400×300×200 mm), same placement.
     pub fn small() -> Self {
-        Self { inner_size_m: [0.4, 0.3, 0.2], ..Self::default() }
+        Self {
+            inner_size_m: [0.4, 0.3, 0.2],
+            ..Self::default()
+        }
     }
 
     /// Floor and four walls as boxes in the workspace frame: `[floor, −x, +x, −y, +y]`.
@@ -40,18 +47,36 @@ impl BinModel {
         };
         let wall_z = 0.5 * lz;
         [
-            make(Vector3::new(0.0, 0.0, -0.5 * t), Vector3::new(0.5 * lx + t, 0.5 * ly + t, 0.5 * t)),
-            make(Vector3::new(-0.5 * lx - 0.5 * t, 0.0, wall_z), Vector3::new(0.5 * t, 0.5 * ly + t, 0.5 * lz)),
-            make(Vector3::new(0.5 * lx + 0.5 * t, 0.0, wall_z), Vector3::new(0.5 * t, 0.5 * ly + t, 0.5 * lz)),
-            make(Vector3::new(0.0, -0.5 * ly - 0.5 * t, wall_z), Vector3::new(0.5 * lx, 0.5 * t, 0.5 * lz)),
-            make(Vector3::new(0.0, 0.5 * ly + 0.5 * t, wall_z), Vector3::new(0.5 * lx, 0.5 * t, 0.5 * lz)),
+            make(
+                Vector3::new(0.0, 0.0, -0.5 * t),
+                Vector3::new(0.5 * lx + t, 0.5 * ly + t, 0.5 * t),
+            ),
+            make(
+                Vector3::new(-0.5 * lx - 0.5 * t, 0.0, wall_z),
+                Vector3::new(0.5 * t, 0.5 * ly + t, 0.5 * lz),
+            ),
+            make(
+                Vector3::new(0.5 * lx + 0.5 * t, 0.0, wall_z),
+                Vector3::new(0.5 * t, 0.5 * ly + t, 0.5 * lz),
+            ),
+            make(
+                Vector3::new(0.0, -0.5 * ly - 0.5 * t, wall_z),
+                Vector3::new(0.5 * lx, 0.5 * t, 0.5 * lz),
+            ),
+            make(
+                Vector3::new(0.0, 0.5 * ly + 0.5 * t, wall_z),
+                Vector3::new(0.5 * lx, 0.5 * t, 0.5 * lz),
+            ),
         ]
     }
 
     /// True if `p` is inside the bin's inner volume.
     pub fn contains_inner(&self, p: &Point3<f32>) -> bool {
         let d = p - self.floor_center;
-        d.x.abs() <= 0.5 * self.inner_size_m[0] && d.y.abs() <= 0.5 * self.inner_size_m[1] && d.z >= 0.0 && d.z <= self.inner_size_m[2]
+        d.x.abs() <= 0.5 * self.inner_size_m[0]
+            && d.y.abs() <= 0.5 * self.inner_size_m[1]
+            && d.z >= 0.0
+            && d.z <= self.inner_size_m[2]
     }
 
     /// Top rim height (z of the wall tops) in the workspace frame.

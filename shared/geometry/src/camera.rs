@@ -23,27 +23,46 @@ pub struct CameraIntrinsics {
 impl CameraIntrinsics {
     /// A 640×480 camera with a ~58° horizontal field of view (RealSense-like).
     pub fn default_640x480() -> Self {
-        Self { width: 640, height: 480, fx: 580.0, fy: 580.0, cx: 319.5, cy: 239.5 }
+        Self {
+            width: 640,
+            height: 480,
+            fx: 580.0,
+            fy: 580.0,
+            cx: 319.5,
+            cy: 239.5,
+        }
     }
 
     /// Checks that the intrinsics describe a usable pinhole camera.
     pub fn validate(&self) -> Result<(), GeometryError> {
-        let finite = [self.fx, self.fy, self.cx, self.cy].iter().all(|v| v.is_finite());
+        let finite = [self.fx, self.fy, self.cx, self.cy]
+            .iter()
+            .all(|v| v.is_finite());
         if !finite {
-            return Err(GeometryError::InvalidIntrinsics("non-finite focal length or principal point"));
+            return Err(GeometryError::InvalidIntrinsics(
+                "non-finite focal length or principal point",
+            ));
         }
         if self.width == 0 || self.height == 0 {
-            return Err(GeometryError::InvalidIntrinsics("image width and height must be > 0"));
+            return Err(GeometryError::InvalidIntrinsics(
+                "image width and height must be > 0",
+            ));
         }
         if self.width > 8192 || self.height > 8192 {
-            return Err(GeometryError::InvalidIntrinsics("image larger than 8192 pixels on a side"));
+            return Err(GeometryError::InvalidIntrinsics(
+                "image larger than 8192 pixels on a side",
+            ));
         }
         if self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(GeometryError::InvalidIntrinsics("focal lengths must be > 0"));
+            return Err(GeometryError::InvalidIntrinsics(
+                "focal lengths must be > 0",
+            ));
         }
         let (w, h) = (self.width as f32, self.height as f32);
         if !(-w..=2.0 * w).contains(&self.cx) || !(-h..=2.0 * h).contains(&self.cy) {
-            return Err(GeometryError::InvalidIntrinsics("principal point far outside the image"));
+            return Err(GeometryError::InvalidIntrinsics(
+                "principal point far outside the image",
+            ));
         }
         Ok(())
     }
@@ -87,9 +106,11 @@ impl CameraModel {
     pub fn top_down(intrinsics: CameraIntrinsics, eye: Point3<f32>) -> Self {
         // Camera axes in workspace coordinates: x_c = +x, y_c = −y, z_c = −z (rotation by π about x).
         let rotation = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI);
-        let workspace_from_camera =
-            Isometry3::from_parts(Translation3::from(eye.coords), rotation);
-        Self { intrinsics, workspace_from_camera }
+        let workspace_from_camera = Isometry3::from_parts(Translation3::from(eye.coords), rotation);
+        Self {
+            intrinsics,
+            workspace_from_camera,
+        }
     }
 
     /// Validates intrinsics and pose.
@@ -98,7 +119,9 @@ impl CameraModel {
         let t = self.workspace_from_camera.translation.vector;
         let q = self.workspace_from_camera.rotation.coords;
         if !(t.iter().all(|v| v.is_finite()) && q.iter().all(|v| v.is_finite())) {
-            return Err(GeometryError::InvalidPose("camera pose has non-finite entries"));
+            return Err(GeometryError::InvalidPose(
+                "camera pose has non-finite entries",
+            ));
         }
         Ok(())
     }
@@ -137,7 +160,10 @@ mod tests {
 
     #[test]
     fn top_down_camera_looks_down() {
-        let cam = CameraModel::top_down(CameraIntrinsics::default_640x480(), Point3::new(0.3, 0.3, 0.9));
+        let cam = CameraModel::top_down(
+            CameraIntrinsics::default_640x480(),
+            Point3::new(0.3, 0.3, 0.9),
+        );
         let axis = cam.workspace_from_camera.rotation * Vector3::z();
         assert!((axis - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-6);
         let x = cam.workspace_from_camera.rotation * Vector3::x();

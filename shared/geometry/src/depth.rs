@@ -40,9 +40,18 @@ impl DepthImage {
     pub fn from_metres(width: u32, height: u32, data: Vec<f32>) -> Result<Self, DepthError> {
         let expected = width as usize * height as usize;
         if data.len() != expected {
-            return Err(DepthError::SizeMismatch { got: data.len(), expected, width, height });
+            return Err(DepthError::SizeMismatch {
+                got: data.len(),
+                expected,
+                width,
+                height,
+            });
         }
-        Ok(Self { width, height, data })
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
     }
 
     /// Converts a 16-bit frame with `unit_m` metres per count (0.001 for millimetres).
@@ -58,7 +67,13 @@ impl DepthImage {
     pub fn to_u16(&self, unit_m: f32) -> Vec<u16> {
         self.data
             .iter()
-            .map(|&d| if is_valid_depth(d) { (d / unit_m).round().clamp(0.0, 65535.0) as u16 } else { 0 })
+            .map(|&d| {
+                if is_valid_depth(d) {
+                    (d / unit_m).round().clamp(0.0, 65535.0) as u16
+                } else {
+                    0
+                }
+            })
             .collect()
     }
 
@@ -96,7 +111,11 @@ mod tests {
     fn size_mismatch_is_an_error() {
         assert!(matches!(
             DepthImage::from_metres(4, 4, vec![1.0; 15]),
-            Err(DepthError::SizeMismatch { got: 15, expected: 16, .. })
+            Err(DepthError::SizeMismatch {
+                got: 15,
+                expected: 16,
+                ..
+            })
         ));
     }
 
@@ -108,7 +127,10 @@ mod tests {
         assert_eq!(raw, vec![500, 0, 0, 1234]);
         let back = DepthImage::from_u16(2, 2, &raw, 0.001).unwrap();
         assert!((back.at(1, 1) - 1.234).abs() < 1e-6);
-        assert!(DepthImage::from_metres(1, 1, vec![f32::NAN]).unwrap().require_valid().is_err());
+        assert!(DepthImage::from_metres(1, 1, vec![f32::NAN])
+            .unwrap()
+            .require_valid()
+            .is_err());
         assert!(DepthImage::from_u16(1, 1, &[1], 0.0).is_err());
     }
 }

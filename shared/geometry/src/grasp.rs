@@ -5,7 +5,9 @@
 //! `[π/2, 3π/2]` (both ends included). With this convention `γ = π` gives the approach closest to
 //! straight down and every `a_i` has a non-positive z component, i.e. all approaches point downward.
 use crate::gripper::GripperModel;
-use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, Unit, UnitQuaternion, Vector3};
+use nalgebra::{
+    Isometry3, Matrix3, Point3, Rotation3, Translation3, Unit, UnitQuaternion, Vector3,
+};
 use serde::{Deserialize, Serialize};
 
 /// Number of approach vectors per grasp configuration (`n_r` in the paper).
@@ -43,7 +45,10 @@ impl ContactGrasp {
         let z = (self.approach - x * x.dot(&self.approach)).normalize();
         let y = z.cross(&x);
         let rot = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
-        Isometry3::from_parts(Translation3::from(self.center().coords), UnitQuaternion::from_rotation_matrix(&rot))
+        Isometry3::from_parts(
+            Translation3::from(self.center().coords),
+            UnitQuaternion::from_rotation_matrix(&rot),
+        )
     }
 
     /// The approach point `t`: the centre of the finger bases, `tcp − a·d`, where `d` is the
@@ -54,7 +59,13 @@ impl ContactGrasp {
 
     /// True if all fields are finite and the directions are unit and orthogonal (within `tol`).
     pub fn is_well_formed(&self, tol: f32) -> bool {
-        let finite = self.contact.coords.iter().chain(self.baseline.iter()).chain(self.approach.iter()).all(|v| v.is_finite())
+        let finite = self
+            .contact
+            .coords
+            .iter()
+            .chain(self.baseline.iter())
+            .chain(self.approach.iter())
+            .all(|v| v.is_finite())
             && self.width.is_finite();
         finite
             && (self.baseline.norm() - 1.0).abs() < tol
@@ -90,13 +101,22 @@ impl GraspConfiguration {
 
     /// The contact grasp using approach `i`.
     pub fn grasp(&self, i: usize) -> ContactGrasp {
-        ContactGrasp { contact: self.contact, baseline: self.baseline, approach: self.approaches()[i], width: self.width }
+        ContactGrasp {
+            contact: self.contact,
+            baseline: self.baseline,
+            approach: self.approaches()[i],
+            width: self.width,
+        }
     }
 
     /// Approach indices ordered by decreasing collision score (ties by index).
     pub fn approaches_by_score(&self) -> [usize; N_APPROACHES] {
         let mut idx: [usize; N_APPROACHES] = std::array::from_fn(|i| i);
-        idx.sort_by(|&a, &b| self.collision_scores[b].total_cmp(&self.collision_scores[a]).then(a.cmp(&b)));
+        idx.sort_by(|&a, &b| {
+            self.collision_scores[b]
+                .total_cmp(&self.collision_scores[a])
+                .then(a.cmp(&b))
+        });
         idx
     }
 }
@@ -107,7 +127,9 @@ pub fn approach_angles(n: usize) -> Vec<f32> {
     match n {
         0 => vec![],
         1 => vec![PI],
-        _ => (0..n).map(|i| 0.5 * PI + PI * i as f32 / (n - 1) as f32).collect(),
+        _ => (0..n)
+            .map(|i| 0.5 * PI + PI * i as f32 / (n - 1) as f32)
+            .collect(),
     }
 }
 
@@ -146,7 +168,11 @@ mod tests {
 
     #[test]
     fn approaches_are_orthogonal_and_point_down() {
-        for b in [Vector3::new(1.0, 0.0, 0.0), Vector3::new(0.3, -0.8, 0.5), Vector3::new(0.0, 0.0, 1.0)] {
+        for b in [
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.3, -0.8, 0.5),
+            Vector3::new(0.0, 0.0, 1.0),
+        ] {
             let b = b.normalize();
             let a = approach_vectors(&b);
             for ai in a.iter() {

@@ -91,9 +91,14 @@ impl GripperModel {
         let [px, py, pz] = self.palm_size_m;
         let finger_z = self.tip_beyond_tcp_m - 0.5 * fl;
         let palm_z = -self.tcp_to_palm_m() - 0.5 * pz;
-        let at = |x: f32, z: f32| Isometry3::from_parts(Translation3::new(x, 0.0, z), UnitQuaternion::identity());
+        let at = |x: f32, z: f32| {
+            Isometry3::from_parts(Translation3::new(x, 0.0, z), UnitQuaternion::identity())
+        };
         [
-            OrientedBox { parent_from_box: at(0.0, palm_z), half_extents: Vector3::new(0.5 * px, 0.5 * py, 0.5 * pz) },
+            OrientedBox {
+                parent_from_box: at(0.0, palm_z),
+                half_extents: Vector3::new(0.5 * px, 0.5 * py, 0.5 * pz),
+            },
             OrientedBox {
                 parent_from_box: at(-0.5 * opening - 0.5 * ft, finger_z),
                 half_extents: Vector3::new(0.5 * ft, 0.5 * fw, 0.5 * fl),
@@ -106,7 +111,11 @@ impl GripperModel {
     }
 
     /// The three boxes placed at `workspace_from_gripper`.
-    pub fn boxes(&self, workspace_from_gripper: &Isometry3<f32>, opening_m: f32) -> [OrientedBox; 3] {
+    pub fn boxes(
+        &self,
+        workspace_from_gripper: &Isometry3<f32>,
+        opening_m: f32,
+    ) -> [OrientedBox; 3] {
         self.boxes_in_gripper_frame(opening_m).map(|b| OrientedBox {
             parent_from_box: workspace_from_gripper * b.parent_from_box,
             half_extents: b.half_extents,
@@ -118,7 +127,11 @@ impl GripperModel {
         let [_, fw, fl] = self.finger_size_m;
         OrientedBox {
             parent_from_box: Isometry3::translation(0.0, 0.0, self.tip_beyond_tcp_m - 0.5 * fl),
-            half_extents: Vector3::new(0.5 * opening_m.clamp(0.0, self.max_opening_m), 0.5 * fw, 0.5 * fl),
+            half_extents: Vector3::new(
+                0.5 * opening_m.clamp(0.0, self.max_opening_m),
+                0.5 * fw,
+                0.5 * fl,
+            ),
         }
     }
 
@@ -131,7 +144,9 @@ impl GripperModel {
         points: impl IntoIterator<Item = &'a Point3<f32>>,
     ) -> bool {
         let boxes = self.boxes(workspace_from_gripper, opening_m);
-        points.into_iter().any(|p| boxes.iter().any(|b| b.contains(p, margin)))
+        points
+            .into_iter()
+            .any(|p| boxes.iter().any(|b| b.contains(p, margin)))
     }
 }
 
@@ -148,12 +163,18 @@ mod tests {
         assert!(((right.parent_from_box.translation.x - right.half_extents.x) - 0.02).abs() < 1e-6);
         // The TCP itself is free; a point just inside a finger is not.
         assert!(!g.collides_with_points(&Isometry3::identity(), 0.04, 0.0, &[Point3::origin()]));
-        assert!(g.collides_with_points(&Isometry3::identity(), 0.04, 0.0, &[Point3::new(0.025, 0.0, 0.0)]));
+        assert!(g.collides_with_points(
+            &Isometry3::identity(),
+            0.04,
+            0.0,
+            &[Point3::new(0.025, 0.0, 0.0)]
+        ));
         // Palm sits behind the fingers.
         assert!(palm.parent_from_box.translation.z < -g.tcp_to_palm_m());
         // Opening is clamped to the maximum.
         let [_, l, r] = g.boxes_in_gripper_frame(1.0);
-        let gap = (r.parent_from_box.translation.x - r.half_extents.x) - (l.parent_from_box.translation.x + l.half_extents.x);
+        let gap = (r.parent_from_box.translation.x - r.half_extents.x)
+            - (l.parent_from_box.translation.x + l.half_extents.x);
         assert!((gap - g.max_opening_m).abs() < 1e-6);
     }
 }

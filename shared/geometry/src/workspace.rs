@@ -17,7 +17,10 @@ pub struct Workspace {
 impl Default for Workspace {
     /// The paper's grid: 64³ voxels of 9 mm (0.576 m cube).
     fn default() -> Self {
-        Self { dims: [64, 64, 64], voxel_size_m: 0.009 }
+        Self {
+            dims: [64, 64, 64],
+            voxel_size_m: 0.009,
+        }
     }
 }
 
@@ -25,10 +28,14 @@ impl Workspace {
     /// Checks dimensions and voxel size.
     pub fn validate(&self) -> Result<(), GeometryError> {
         if self.dims.iter().any(|&d| d == 0 || d > 512) {
-            return Err(GeometryError::InvalidWorkspace("grid dimensions must be in 1..=512"));
+            return Err(GeometryError::InvalidWorkspace(
+                "grid dimensions must be in 1..=512",
+            ));
         }
         if !(self.voxel_size_m.is_finite() && self.voxel_size_m > 1e-4 && self.voxel_size_m < 1.0) {
-            return Err(GeometryError::InvalidWorkspace("voxel size must be in (0.1 mm, 1 m)"));
+            return Err(GeometryError::InvalidWorkspace(
+                "voxel size must be in (0.1 mm, 1 m)",
+            ));
         }
         Ok(())
     }
@@ -40,7 +47,11 @@ impl Workspace {
 
     /// Metric size of the box.
     pub fn extent(&self) -> Vector3<f32> {
-        Vector3::new(self.dims[0] as f32, self.dims[1] as f32, self.dims[2] as f32) * self.voxel_size_m
+        Vector3::new(
+            self.dims[0] as f32,
+            self.dims[1] as f32,
+            self.dims[2] as f32,
+        ) * self.voxel_size_m
     }
 
     /// Linear index of voxel (i, j, k).
@@ -61,7 +72,11 @@ impl Workspace {
     #[inline]
     pub fn voxel_center(&self, i: usize, j: usize, k: usize) -> Point3<f32> {
         let s = self.voxel_size_m;
-        Point3::new((i as f32 + 0.5) * s, (j as f32 + 0.5) * s, (k as f32 + 0.5) * s)
+        Point3::new(
+            (i as f32 + 0.5) * s,
+            (j as f32 + 0.5) * s,
+            (k as f32 + 0.5) * s,
+        )
     }
 
     /// Continuous voxel coordinates of a workspace point (voxel centres at integer + 0.5).
@@ -121,7 +136,10 @@ mod tests {
 
     #[test]
     fn index_round_trip() {
-        let ws = Workspace { dims: [5, 6, 7], voxel_size_m: 0.01 };
+        let ws = Workspace {
+            dims: [5, 6, 7],
+            voxel_size_m: 0.01,
+        };
         for idx in 0..ws.voxel_count() {
             let [i, j, k] = ws.unindex(idx);
             assert_eq!(ws.index(i, j, k), idx);
@@ -132,7 +150,10 @@ mod tests {
 
     #[test]
     fn trilinear_reproduces_linear_field() {
-        let ws = Workspace { dims: [8, 8, 8], voxel_size_m: 0.01 };
+        let ws = Workspace {
+            dims: [8, 8, 8],
+            voxel_size_m: 0.01,
+        };
         let grid: Vec<f32> = (0..ws.voxel_count())
             .map(|idx| {
                 let c = ws.voxel_center(ws.unindex(idx)[0], ws.unindex(idx)[1], ws.unindex(idx)[2]);

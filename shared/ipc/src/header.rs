@@ -41,7 +41,12 @@ pub enum Stage {
 
 impl Stage {
     /// All stages in data-flow order.
-    pub const ALL: [Stage; 4] = [Stage::CameraIngest, Stage::GridFusion, Stage::Inference, Stage::GraspSelection];
+    pub const ALL: [Stage; 4] = [
+        Stage::CameraIngest,
+        Stage::GridFusion,
+        Stage::Inference,
+        Stage::GraspSelection,
+    ];
 
     /// Decodes a stored stage id.
     pub fn from_u32(v: u32) -> Option<Self> {
@@ -87,9 +92,19 @@ impl StatusCode {
     /// Decodes a stored status.
     pub fn from_u32(v: u32) -> Option<Self> {
         use StatusCode::*;
-        [Ok, InvalidDepth, InvalidCamera, FusionFailed, InferenceFailed, SelectionFailed, Lost, ProtocolError, PayloadTooLarge]
-            .into_iter()
-            .find(|s| *s as u32 == v)
+        [
+            Ok,
+            InvalidDepth,
+            InvalidCamera,
+            FusionFailed,
+            InferenceFailed,
+            SelectionFailed,
+            Lost,
+            ProtocolError,
+            PayloadTooLarge,
+        ]
+        .into_iter()
+        .find(|s| *s as u32 == v)
     }
 }
 
@@ -184,7 +199,14 @@ impl Default for FrameHeader {
 
 impl FrameHeader {
     /// A fresh header for a frame captured at `capture_ns` by `camera`, over `workspace`.
-    pub fn new(kind: MessageKind, frame_id: u64, source_id: u32, camera: &CameraModel, workspace: &Workspace, capture_ns: u64) -> Self {
+    pub fn new(
+        kind: MessageKind,
+        frame_id: u64,
+        source_id: u32,
+        camera: &CameraModel,
+        workspace: &Workspace,
+        capture_ns: u64,
+    ) -> Self {
         let t = camera.workspace_from_camera.translation.vector;
         let q = camera.workspace_from_camera.rotation.coords; // (i, j, k, w)
         let k = camera.intrinsics;
@@ -213,7 +235,12 @@ impl FrameHeader {
 
     /// The same frame re-labelled as another kind (for the next stage's output).
     pub fn forwarded(&self, kind: MessageKind) -> Self {
-        Self { kind: kind as u32, last_pid: std::process::id(), element_count: 0, ..*self }
+        Self {
+            kind: kind as u32,
+            last_pid: std::process::id(),
+            element_count: 0,
+            ..*self
+        }
     }
 
     /// Turns the header into an error record raised at `stage`.
@@ -243,7 +270,11 @@ impl FrameHeader {
 
     /// The error message as text.
     pub fn error_text(&self) -> String {
-        let end = self.error_message.iter().position(|&b| b == 0).unwrap_or(ERROR_MESSAGE_LEN);
+        let end = self
+            .error_message
+            .iter()
+            .position(|&b| b == 0)
+            .unwrap_or(ERROR_MESSAGE_LEN);
         String::from_utf8_lossy(&self.error_message[..end]).into_owned()
     }
 
@@ -255,10 +286,16 @@ impl FrameHeader {
     /// Checks version and kind.
     pub fn check(&self, expected: MessageKind) -> Result<(), String> {
         if self.version != PROTOCOL_VERSION {
-            return Err(format!("protocol version {} (expected {PROTOCOL_VERSION})", self.version));
+            return Err(format!(
+                "protocol version {} (expected {PROTOCOL_VERSION})",
+                self.version
+            ));
         }
         if self.kind != expected as u32 {
-            return Err(format!("message kind {} (expected {})", self.kind, expected as u32));
+            return Err(format!(
+                "message kind {} (expected {})",
+                self.kind, expected as u32
+            ));
         }
         Ok(())
     }
@@ -269,14 +306,27 @@ impl FrameHeader {
         let p = self.workspace_from_camera;
         let rotation = UnitQuaternion::from_quaternion(Quaternion::new(p[6], p[3], p[4], p[5]));
         CameraModel {
-            intrinsics: CameraIntrinsics { width: self.image_size[0], height: self.image_size[1], fx, fy, cx, cy },
-            workspace_from_camera: Isometry3::from_parts(Translation3::new(p[0], p[1], p[2]), rotation),
+            intrinsics: CameraIntrinsics {
+                width: self.image_size[0],
+                height: self.image_size[1],
+                fx,
+                fy,
+                cx,
+                cy,
+            },
+            workspace_from_camera: Isometry3::from_parts(
+                Translation3::new(p[0], p[1], p[2]),
+                rotation,
+            ),
         }
     }
 
     /// Workspace stored in the header.
     pub fn workspace(&self) -> Workspace {
-        Workspace { dims: self.grid_dims, voxel_size_m: self.voxel_size_m }
+        Workspace {
+            dims: self.grid_dims,
+            voxel_size_m: self.voxel_size_m,
+        }
     }
 
     /// Milliseconds between two stamps (0 if either is unset).
@@ -292,7 +342,10 @@ impl FrameHeader {
 
 /// `CLOCK_REALTIME` in nanoseconds.
 pub fn now_ns() -> u64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
 }
 
 #[cfg(test)]
@@ -320,12 +373,20 @@ mod tests {
 
     #[test]
     fn camera_and_workspace_round_trip() {
-        let cam = CameraModel::top_down(CameraIntrinsics::default_640x480(), Point3::new(0.3, 0.2, 0.9));
+        let cam = CameraModel::top_down(
+            CameraIntrinsics::default_640x480(),
+            Point3::new(0.3, 0.2, 0.9),
+        );
         let ws = Workspace::default();
         let h = FrameHeader::new(MessageKind::DepthFrame, 7, 2, &cam, &ws, 123);
         let back = h.camera();
         assert_eq!(back.intrinsics, cam.intrinsics);
-        assert!((back.workspace_from_camera.to_homogeneous() - cam.workspace_from_camera.to_homogeneous()).norm() < 1e-6);
+        assert!(
+            (back.workspace_from_camera.to_homogeneous()
+                - cam.workspace_from_camera.to_homogeneous())
+            .norm()
+                < 1e-6
+        );
         assert_eq!(h.workspace(), ws);
         assert!(h.check(MessageKind::DepthFrame).is_ok());
         assert!(h.check(MessageKind::NormalGrid).is_err());
@@ -333,8 +394,18 @@ mod tests {
 
     #[test]
     fn error_records_carry_reason() {
-        let cam = CameraModel::top_down(CameraIntrinsics::default_640x480(), Point3::new(0.3, 0.2, 0.9));
-        let h = FrameHeader::new(MessageKind::DepthFrame, 1, 0, &cam, &Workspace::default(), 0);
+        let cam = CameraModel::top_down(
+            CameraIntrinsics::default_640x480(),
+            Point3::new(0.3, 0.2, 0.9),
+        );
+        let h = FrameHeader::new(
+            MessageKind::DepthFrame,
+            1,
+            0,
+            &cam,
+            &Workspace::default(),
+            0,
+        );
         let long = "é".repeat(200);
         let e = h.into_error(StatusCode::InvalidDepth, Stage::GridFusion, &long);
         assert_eq!(e.status(), StatusCode::InvalidDepth);

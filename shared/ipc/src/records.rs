@@ -213,7 +213,17 @@ mod tests {
     fn pick_record_round_trip() {
         let pose = Isometry3::new(Vector3::new(0.1, 0.2, 0.3), Vector3::new(0.4, -0.2, 1.0));
         let pre = Isometry3::from_parts(Translation3::new(0.1, 0.2, 0.4), pose.rotation);
-        let r = PickRecord::new(&pose, &pre, &Point3::new(0.1, 0.2, 0.29), 0.03, 0.9, 1.0, 4, 9, 0);
+        let r = PickRecord::new(
+            &pose,
+            &pre,
+            &Point3::new(0.1, 0.2, 0.29),
+            0.03,
+            0.9,
+            1.0,
+            4,
+            9,
+            0,
+        );
         let back = r.workspace_from_gripper();
         assert!((back.to_homogeneous() - pose.to_homogeneous()).norm() < 1e-5);
         assert!((r.approach() - pose.rotation * Vector3::z()).norm() < 1e-6);

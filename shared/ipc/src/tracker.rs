@@ -29,7 +29,14 @@ impl FrameTracker {
     /// A tracker for shard `offset` of `stride` workers with a loss timeout in nanoseconds.
     pub fn new(stride: u64, offset: u64, timeout_ns: u64) -> Self {
         let stride = stride.max(1);
-        Self { stride, offset: offset % stride, timeout_ns, pending: BTreeMap::new(), done: BTreeSet::new(), done_capacity: 65536 }
+        Self {
+            stride,
+            offset: offset % stride,
+            timeout_ns,
+            pending: BTreeMap::new(),
+            done: BTreeSet::new(),
+            done_capacity: 65536,
+        }
     }
 
     /// True if this shard owns `frame_id`.
@@ -56,8 +63,12 @@ impl FrameTracker {
 
     /// Frames whose timeout expired at `now_ns`; they are marked done and must be reported lost.
     pub fn expire(&mut self, now_ns: u64) -> Vec<u64> {
-        let lost: Vec<u64> =
-            self.pending.iter().filter(|(_, &t)| now_ns.saturating_sub(t) > self.timeout_ns).map(|(&id, _)| id).collect();
+        let lost: Vec<u64> = self
+            .pending
+            .iter()
+            .filter(|(_, &t)| now_ns.saturating_sub(t) > self.timeout_ns)
+            .map(|(&id, _)| id)
+            .collect();
         for id in &lost {
             self.pending.remove(id);
             self.remember(*id);

@@ -1,11 +1,11 @@
 //! iceoryx2 plumbing: a node per process, publishers that write straight into shared memory,
 //! subscribers that sleep in a WaitSet, and the drop policy under overload.
 use crate::header::FrameHeader;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::{BackpressureAction, BackpressureInfo};
-use iceoryx2::port::listener::Listener;
-use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
@@ -49,7 +49,10 @@ pub enum IpcError {
 
 fn setup<E: Debug>(what: impl Into<String>) -> impl FnOnce(E) -> IpcError {
     let what = what.into();
-    move |e| IpcError::Setup { what, detail: format!("{e:?}") }
+    move |e| IpcError::Setup {
+        what,
+        detail: format!("{e:?}"),
+    }
 }
 
 /// What a publisher does when a subscriber's buffer is full.
@@ -84,7 +87,13 @@ pub struct ChannelConfig {
 
 impl Default for ChannelConfig {
     fn default() -> Self {
-        Self { subscriber_buffer: 4, max_publishers: 8, max_subscribers: 8, drop_policy: DropPolicy::DropNewest, block_timeout_ms: 2000 }
+        Self {
+            subscriber_buffer: 4,
+            max_publishers: 8,
+            max_subscribers: 8,
+            drop_policy: DropPolicy::DropNewest,
+            block_timeout_ms: 2000,
+        }
     }
 }
 
@@ -97,7 +106,9 @@ pub struct ServiceNames {
 impl ServiceNames {
     /// Names under `psgrasp/<pipeline>/…`.
     pub fn new(pipeline: &str) -> Self {
-        Self { prefix: format!("psgrasp/{pipeline}") }
+        Self {
+            prefix: format!("psgrasp/{pipeline}"),
+        }
     }
     /// Depth frames.
     pub fn depth(&self) -> String {
@@ -147,13 +158,18 @@ impl PipelineNode {
     /// processes first (a crashed stage must not leave the next one stuck).
     pub fn new(node_name: &str, pipeline: &str, channel: ChannelConfig) -> Result<Self, IpcError> {
         cleanup_dead_nodes();
-        let name = NodeName::new(node_name).map_err(|_| IpcError::BadName(node_name.to_string()))?;
+        let name =
+            NodeName::new(node_name).map_err(|_| IpcError::BadName(node_name.to_string()))?;
         let node = NodeBuilder::new()
             .name(&name)
             .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
             .create::<ipc::Service>()
             .map_err(setup(format!("node {node_name}")))?;
-        Ok(Self { node, names: ServiceNames::new(pipeline), channel })
+        Ok(Self {
+            node,
+            names: ServiceNames::new(pipeline),
+            channel,
+        })
     }
 
     /// The underlying node.
@@ -180,7 +196,10 @@ impl PipelineNode {
             .map_err(setup(format!("publish-subscribe service {service}")))
     }
 
-    fn event(&self, service: &str) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, IpcError> {
+    fn event(
+        &self,
+        service: &str,
+    ) -> Result<iceoryx2::service::port_factory::event::PortFactory<ipc::Service>, IpcError> {
         self.node
             .service_builder(&service_name(service)?)
             .event()
@@ -234,12 +253,25 @@ impl PipelineNode {
             .set_backpressure_handler(handler)
             .create()
             .map_err(setup(format!("publisher on {service}")))?;
-        let notifier = self.event(service)?.notifier_builder().create().map_err(setup(format!("notifier on {service}")))?;
-        Ok(FramePublisher { service: service.to_string(), factory, publisher, notifier, dropped })
+        let notifier = self
+            .event(service)?
+            .notifier_builder()
+            .create()
+            .map_err(setup(format!("notifier on {service}")))?;
+        Ok(FramePublisher {
+            service: service.to_string(),
+            factory,
+            publisher,
+            notifier,
+            dropped,
+        })
     }
 
     /// A subscriber of `[T]` slices on `service`, connected immediately.
-    pub fn subscriber<T: Debug + ZeroCopySend + 'static>(&self, service: &str) -> Result<FrameSubscriber<T>, IpcError> {
+    pub fn subscriber<T: Debug + ZeroCopySend + 'static>(
+        &self,
+        service: &str,
+    ) -> Result<FrameSubscriber<T>, IpcError> {
         self.subscriber_with_buffer(service, self.channel.subscriber_buffer)
     }
 
@@ -250,12 +282,23 @@ impl PipelineNode {
         buffer: usize,
     ) -> Result<FrameSubscriber<T>, IpcError> {
         let factory = self.pubsub::<T>(service, 0, buffer)?;
-        let subscriber =
-            factory.subscriber_builder().buffer_size(buffer).create().map_err(setup(format!("subscriber on {service}")))?;
+        let subscriber = factory
+            .subscriber_builder()
+            .buffer_size(buffer)
+            .create()
+            .map_err(setup(format!("subscriber on {service}")))?;
         // A subscriber connects on its first receive: do it now so no early frame is lost.
         let _ = subscriber.has_samples();
-        let listener = self.event(service)?.listener_builder().create().map_err(setup(format!("listener on {service}")))?;
-        Ok(FrameSubscriber { service: service.to_string(), subscriber, listener })
+        let listener = self
+            .event(service)?
+            .listener_builder()
+            .create()
+            .map_err(setup(format!("listener on {service}")))?;
+        Ok(FrameSubscriber {
+            service: service.to_string(),
+            subscriber,
+            listener,
+        })
     }
 }
 
@@ -290,10 +333,10 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
         fill: impl FnOnce(&mut [T]) -> Result<(), E>,
         end_stamp: Option<crate::Stamp>,
     ) -> Result<Result<usize, E>, IpcError> {
-        let mut sample = self
-            .publisher
-            .loan_slice(len)
-            .map_err(|e| IpcError::Send { service: self.service.clone(), detail: format!("loan of {len} elements: {e:?}") })?;
+        let mut sample = self.publisher.loan_slice(len).map_err(|e| IpcError::Send {
+            service: self.service.clone(),
+            detail: format!("loan of {len} elements: {e:?}"),
+        })?;
         if let Err(e) = fill(sample.payload_mut()) {
             return Ok(Err(e));
         }
@@ -302,8 +345,10 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
             header.stamp(stamp);
         }
         *sample.user_header_mut() = header;
-        let delivered =
-            sample.send().map_err(|e| IpcError::Send { service: self.service.clone(), detail: format!("{e:?}") })?;
+        let delivered = sample.send().map_err(|e| IpcError::Send {
+            service: self.service.clone(),
+            detail: format!("{e:?}"),
+        })?;
         let _ = self.notifier.notify();
         Ok(Ok(delivered))
     }
@@ -343,7 +388,10 @@ pub struct FrameSubscriber<T: Debug + ZeroCopySend + 'static> {
 impl<T: Debug + ZeroCopySend + 'static> FrameSubscriber<T> {
     /// The next queued message, if any. The sample borrows shared memory: no copy.
     pub fn receive(&self) -> Result<Option<Sample<ipc::Service, [T], FrameHeader>>, IpcError> {
-        self.subscriber.receive().map_err(|e| IpcError::Receive { service: self.service.clone(), detail: format!("{e:?}") })
+        self.subscriber.receive().map_err(|e| IpcError::Receive {
+            service: self.service.clone(),
+            detail: format!("{e:?}"),
+        })
     }
 
     /// Clears pending wake-up events (call before draining with [`Self::receive`]).
