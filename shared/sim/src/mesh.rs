@@ -91,3 +91,331 @@ impl MeshLibrary {
         Ok(SharedShape::compound(pieces))
     }
 }
+
+/// A set of meshes fetched by `scripts/fetch_objects.sh`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MeshSet {
+    /// YCB objects (binary STL in metres) under `<dir>/ycb/`.
+    Ycb,
+    /// pybullet's procedural random URDF objects (OBJ, rescaled) under `<dir>/random_urdfs/`.
+    RandomUrdf,
+}
+
+impl MeshSet {
+    fn folder(self) -> &'static str {
+        match self {
+            MeshSet::Ycb => "ycb",
+            MeshSet::RandomUrdf => "random_urdfs",
+        }
+    }
+}
+
+/// Settings of mesh preparation.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct MeshPrepConfig {
+    /// YCB meshes whose largest extent exceeds this are skipped (m).
+    pub max_extent_m: f32,
+    /// Random URDF meshes are scaled so that their largest extent is this (m).
+    pub random_urdf_extent_m: f32,
+    /// VHACD voxel resolution.
+    pub vhacd_resolution: u32,
+    /// Share of the objects that go to the training split (the paper: 149/200).
+    pub train_share: f32,
+}
+
+impl Default for MeshPrepConfig {
+    fn default() -> Self {
+        Self {
+            max_extent_m: 0.25,
+            random_urdf_extent_m: 0.08,
+            vhacd_resolution: 64,
+            train_share: 0.745,
+        }
+    }
+}
+
+/// YCB objects skipped: multi-part sets and very large or flat items.
+pub const YCB_EXCLUDED: [&str; 9] = [
+    "marbles",
+    "cups",
+    "blocks",
+    "lego",
+    "chain",
+    "skillet_lid",
+    "nine_hole_peg",
+    "plate",
+    "rope",
+];
+
+fn files_with_ext(dir: &std::path::Path, ext: &str, out: &mut Vec<std::path::PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let mut entries: Vec<_> = entries.flatten().map(|e| e.path()).collect();
+    entries.sort();
+    for p in entries {
+        if p.is_dir() {
+            files_with_ext(&p, ext, out);
+        } else if p.extension().is_some_and(|e| e.eq_ignore_ascii_case(ext)) {
+            out.push(p);
+        }
+    }
+}
+
+/// Vertices and triangles of a mesh file.
+type Triangles = (Vec<[f32; 3]>, Vec<[u32; 3]>);
+
+fn load_triangles(path: &std::path::Path) -> Result<Triangles, SimError> {
+    let key = path.display().to_string();
+    let bad = |reason: String| SimError::InvalidMesh {
+        key: key.clone(),
+        reason,
+    };
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if ext == "stl" {
+        let mut f = std::fs::File::open(path).map_err(|e| bad(e.to_string()))?;
+        let mesh = stl_io::read_stl(&mut f).map_err(|e| bad(e.to_string()))?;
+        let v = mesh.vertices.iter().map(|v| [v[0], v[1], v[2]]).collect();
+        let t = mesh
+            .faces
+            .iter()
+            .map(|f| f.vertices.map(|i| i as u32))
+            .collect();
+        Ok((v, t))
+    } else {
+        let (models, _) = tobj::load_obj(
+            path,
+            &tobj::LoadOptions {
+                triangulate: true,
+                single_index: true,
+                ..Default::default()
+            },
+        )
+        .map_err(|e| bad(e.to_string()))?;
+        let mut v = Vec::new();
+        let mut t = Vec::new();
+        for m in models {
+            let base = v.len() as u32;
+            v.extend(m.mesh.positions.chunks_exact(3).map(|p| [p[0], p[1], p[2]]));
+            t.extend(
+                m.mesh
+                    .indices
+                    .chunks_exact(3)
+                    .map(|i| [base + i[0], base + i[1], base + i[2]]),
+            );
+        }
+        Ok((v, t))
+    }
+}
+
+/// Loads (and on first use decomposes and caches under `<dir>/cache/`) every mesh of `set`,
+/// adds them to `meshes` and returns them as library objects with a fixed, name-based split.
+pub fn load_mesh_set(
+    dir: &std::path::Path,
+    set: MeshSet,
+    meshes: &mut MeshLibrary,
+) -> Result<crate::ObjectLibrary, SimError> {
+    load_mesh_set_with(dir, set, meshes, &MeshPrepConfig::default())
+}
+
+/// [`load_mesh_set`] with explicit settings.
+pub fn load_mesh_set_with(
+    dir: &std::path::Path,
+    set: MeshSet,
+    meshes: &mut MeshLibrary,
+    config: &MeshPrepConfig,
+) -> Result<crate::ObjectLibrary, SimError> {
+    use crate::objects::{LibraryObject, ObjectKind, ObjectSpec, Part, Primitive, Split};
+    use rand::seq::SliceRandom;
+    use rand::SeedableRng;
+    let root = dir.join(set.folder());
+    let mut files = Vec::new();
+    match set {
+        MeshSet::Ycb => files_with_ext(&root, "stl", &mut files),
+        MeshSet::RandomUrdf => {
+            files_with_ext(&root, "obj", &mut files);
+            files.retain(|p| {
+                !p.file_stem()
+                    .is_some_and(|s| s.to_string_lossy().ends_with("_coll"))
+            });
+        }
+    }
+    if files.is_empty() {
+        return Err(SimError::InvalidMesh {
+            key: root.display().to_string(),
+            reason: "no mesh files found (run scripts/fetch_objects.sh)".into(),
+        });
+    }
+    let cache_dir = dir.join("cache");
+    let _ = std::fs::create_dir_all(&cache_dir);
+    let mut keys = Vec::new();
+    for path in files {
+        let stem = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if set == MeshSet::Ycb && YCB_EXCLUDED.iter().any(|x| stem.contains(x)) {
+            continue;
+        }
+        let key = format!("{}/{stem}", set.folder());
+        let (mut v, t) = load_triangles(&path)?;
+        if v.is_empty() || t.is_empty() {
+            continue;
+        }
+        // Centre on the bounding box and scale.
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in &v {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0f32, f32::max);
+        if !(extent.is_finite() && extent > 1e-6) {
+            continue;
+        }
+        let scale = match set {
+            MeshSet::Ycb if extent > config.max_extent_m => continue,
+            MeshSet::Ycb => 1.0,
+            MeshSet::RandomUrdf => config.random_urdf_extent_m / extent,
+        };
+        let c = [
+            0.5 * (lo[0] + hi[0]),
+            0.5 * (lo[1] + hi[1]),
+            0.5 * (lo[2] + hi[2]),
+        ];
+        for p in &mut v {
+            *p = [
+                (p[0] - c[0]) * scale,
+                (p[1] - c[1]) * scale,
+                (p[2] - c[2]) * scale,
+            ];
+        }
+        let cache = cache_dir.join(format!(
+            "{}-{stem}-r{}.json",
+            set.folder(),
+            config.vhacd_resolution
+        ));
+        let parts: Vec<Vec<[f32; 3]>> = match std::fs::read_to_string(&cache)
+            .ok()
+            .and_then(|s| serde_json::from_str(&s).ok())
+        {
+            Some(p) => p,
+            None => {
+                let verts: Vec<Vector> = v.iter().map(|p| Vector::new(p[0], p[1], p[2])).collect();
+                let params = parry3d::transformation::vhacd::VHACDParameters {
+                    resolution: config.vhacd_resolution,
+                    ..Default::default()
+                };
+                let decomp =
+                    parry3d::transformation::vhacd::VHACD::decompose(&params, &verts, &t, true);
+                let hulls: Vec<Vec<[f32; 3]>> = decomp
+                    .compute_exact_convex_hulls(&verts, &t)
+                    .into_iter()
+                    .map(|(pts, _)| pts.iter().map(|p| [p.x, p.y, p.z]).collect())
+                    .filter(|pts: &Vec<[f32; 3]>| pts.len() >= 4)
+                    .collect();
+                if let Ok(text) = serde_json::to_string(&hulls) {
+                    let tmp = cache.with_extension(format!("tmp-{}", std::process::id()));
+                    if std::fs::write(&tmp, text).is_ok() {
+                        let _ = std::fs::rename(&tmp, &cache);
+                    }
+                }
+                hulls
+            }
+        };
+        if parts.is_empty() {
+            continue;
+        }
+        meshes.insert(
+            key.clone(),
+            MeshAsset {
+                vertices: v,
+                triangles: t,
+                convex_parts: parts,
+            },
+        );
+        keys.push(key);
+    }
+    keys.sort();
+    let mut order = keys.clone();
+    order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(
+        crate::objects::PROCEDURAL_LIBRARY_SEED ^ set as u64,
+    ));
+    let n_train = (config.train_share.clamp(0.0, 1.0) * keys.len() as f32).round() as usize;
+    let train: std::collections::BTreeSet<&String> = order[..n_train].iter().collect();
+    let objects = keys
+        .iter()
+        .map(|key| LibraryObject {
+            spec: ObjectSpec {
+                name: key.clone(),
+                kind: ObjectKind::Mesh,
+                parts: vec![Part {
+                    object_from_part: nalgebra::Isometry3::identity(),
+                    primitive: Primitive::Mesh {
+                        key: key.clone(),
+                        scale: 1.0,
+                    },
+                }],
+            },
+            split: if train.contains(key) {
+                Split::Train
+            } else {
+                Split::Test
+            },
+        })
+        .collect();
+    Ok(crate::ObjectLibrary { objects })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn obj_mesh_set_loads_decomposes_and_caches() {
+        let dir = std::env::temp_dir().join(format!("psgrasp-mesh-test-{}", std::process::id()));
+        let sub = dir.join("random_urdfs/000");
+        std::fs::create_dir_all(&sub).unwrap();
+        // A unit cube as OBJ (will be rescaled to 80 mm).
+        let obj = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
+                   f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\nf 4 1 5\nf 4 5 8\n";
+        std::fs::write(sub.join("000.obj"), obj).unwrap();
+        std::fs::write(sub.join("000_coll.obj"), obj).unwrap();
+        let mut meshes = MeshLibrary::default();
+        let lib = load_mesh_set(&dir, MeshSet::RandomUrdf, &mut meshes).unwrap();
+        assert_eq!(lib.objects.len(), 1);
+        assert_eq!(meshes.len(), 1);
+        let shape = lib.objects[0].spec.build_shape(&meshes).unwrap();
+        let aabb = shape.compute_local_aabb();
+        assert!(((aabb.maxs - aabb.mins).max_element() - 0.08).abs() < 1e-4);
+        assert!(lib.objects[0].spec.build_physics_shape(&meshes).is_ok());
+        // Second load comes from the cache and gives the same pieces.
+        let mut again = MeshLibrary::default();
+        load_mesh_set(&dir, MeshSet::RandomUrdf, &mut again).unwrap();
+        assert_eq!(
+            meshes.get("random_urdfs/000"),
+            again.get("random_urdfs/000")
+        );
+        assert!(dir.join("cache").read_dir().unwrap().count() >= 1);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn missing_directory_is_a_clear_error() {
+        let mut meshes = MeshLibrary::default();
+        let err = load_mesh_set(
+            std::path::Path::new("/nonexistent/psgrasp"),
+            MeshSet::Ycb,
+            &mut meshes,
+        )
+        .unwrap_err();
+        assert!(matches!(err, SimError::InvalidMesh { .. }));
+    }
+}

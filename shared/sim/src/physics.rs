@@ -168,7 +168,7 @@ pub fn drop_and_settle(
     while steps < max_steps && !at_rest {
         world.step();
         steps += 1;
-        if steps % 10 == 0 {
+        if steps.is_multiple_of(10) {
             at_rest = handles.iter().all(|h| {
                 world.bodies.get(*h).is_none_or(|b| {
                     b.is_sleeping()

@@ -214,6 +214,23 @@ impl Scene {
             && self.shapes[index].contains_point(&self.poses[index], point_to_glam(p))
     }
 
+    /// Radius of a sphere about the object's origin that encloses object `index`.
+    pub fn object_bounding_radius(&self, index: usize) -> Option<f32> {
+        (index < self.object_count()).then(|| crate::objects::bounding_radius(&self.shapes[index]))
+    }
+
+    /// Signed distance from `p` to the surface of object `index` (negative inside); `None` for
+    /// an unknown index.
+    pub fn object_signed_distance(&self, index: usize, p: &Point3<f32>) -> Option<f32> {
+        if index >= self.object_count() {
+            return None;
+        }
+        let q = point_to_glam(p);
+        let proj = self.shapes[index].project_point(&self.poses[index], q, false);
+        let d = proj.point.distance(q);
+        Some(if proj.is_inside { -d } else { d })
+    }
+
     /// Indices of the objects whose surface lies within `dist` of `p`.
     pub fn objects_near_point(&self, p: &Point3<f32>, dist: f32) -> Vec<usize> {
         let q = point_to_glam(p);
@@ -266,6 +283,26 @@ impl Scene {
             }
         }
         false
+    }
+
+    /// Everything the oriented box intersects (objects by index, the bin once per box part).
+    pub fn box_colliders(&self, b: &OrientedBox) -> Vec<HitTarget> {
+        let cuboid = Cuboid::new(vec_to_glam(&b.half_extents));
+        let pose = pose_to_glam(&b.parent_from_box);
+        let aabb = cuboid.aabb(&pose);
+        let mut out: Vec<usize> = self
+            .bvh
+            .intersect_aabb(&aabb)
+            .map(|l| l as usize)
+            .filter(|&i| {
+                intersection_test(&pose, &cuboid, &self.poses[i], self.shapes[i].as_ref())
+                    .is_ok_and(|r| r.intersecting)
+                    || (self.shapes[i].as_trimesh().is_some()
+                        && self.shapes[i].contains_point(&self.poses[i], pose.translation))
+            })
+            .collect();
+        out.sort_unstable();
+        out.into_iter().map(|i| self.target_of(i)).collect()
     }
 
     /// Renders the clean depth image (metres along the optical axis, 0 where nothing is hit).

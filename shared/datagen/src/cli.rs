@@ -1,0 +1,378 @@
+//! The `psgrasp datagen` and `psgrasp inspect` commands (argument structs and run functions).
+use crate::dataset::{
+    read_scene, read_scene_meta, scene_file_name, write_scene, Manifest, ManifestScene,
+    FORMAT_VERSION,
+};
+use crate::generate::{derive_seed, generate_record, Difficulty, GenerationConfig};
+use crate::inspect::render_inspection;
+use crate::labels::LabelConfig;
+use crate::DatagenError;
+use anyhow::Context;
+use psgrasp_sim::{MeshLibrary, ObjectLibrary, Split};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::mpsc;
+use std::time::Instant;
+
+/// Where the objects come from.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum ObjectSource {
+    /// Procedural objects only (always available).
+    Procedural,
+    /// The 78 YCB meshes (needs `scripts/fetch_objects.sh`).
+    Ycb,
+    /// The 1000 pybullet random URDF meshes (needs `scripts/fetch_objects.sh`).
+    RandomUrdf,
+    /// Procedural objects plus every mesh set found.
+    Mix,
+}
+
+impl ObjectSource {
+    /// The name used on the command line and in metadata.
+    pub fn name(self) -> &'static str {
+        match self {
+            ObjectSource::Procedural => "procedural",
+            ObjectSource::Ycb => "ycb",
+            ObjectSource::RandomUrdf => "random-urdf",
+            ObjectSource::Mix => "mix",
+        }
+    }
+}
+
+/// Arguments of `psgrasp datagen`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DatagenArgs {
+    /// Number of scenes in the dataset.
+    #[arg(long, default_value_t = 100)]
+    pub scenes: u64,
+    /// Object source.
+    #[arg(long, value_enum, default_value_t = ObjectSource::Procedural)]
+    pub objects: ObjectSource,
+    /// Scene difficulty (train uses training objects, the others test objects).
+    #[arg(long, value_enum, default_value_t = Difficulty::Train)]
+    pub difficulty: Difficulty,
+    /// Output directory (created; a run into an existing directory resumes it).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Run seed.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// TOML file with a `GenerationConfig` (any field may be left out).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Reduced label sampling (about a tenth of the work) for previews and CI.
+    #[arg(long)]
+    pub quick: bool,
+    /// Directory of the fetched meshes (default `~/.cache/psgrasp/objects`).
+    #[arg(long)]
+    pub mesh_dir: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Arguments of `psgrasp inspect`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct InspectArgs {
+    /// A scene file written by `psgrasp datagen`.
+    pub scene: PathBuf,
+    /// Output PNG (default: the scene path with `.png`).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Most grasp configurations drawn.
+    #[arg(long, default_value_t = 400)]
+    pub max_grasps: usize,
+    /// Draw on the clean depth instead of the network-input depth.
+    #[arg(long)]
+    pub clean: bool,
+}
+
+/// The default mesh directory (`$HOME/.cache/psgrasp/objects`).
+pub fn default_mesh_dir() -> PathBuf {
+    std::env::var_os("HOME")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("."))
+        .join(".cache/psgrasp/objects")
+}
+
+/// Builds the object library (and meshes) for a source.
+pub fn build_library(
+    source: ObjectSource,
+    mesh_dir: &Path,
+) -> Result<(ObjectLibrary, MeshLibrary), DatagenError> {
+    let mut library = ObjectLibrary::default();
+    let mut meshes = MeshLibrary::default();
+    if matches!(source, ObjectSource::Procedural | ObjectSource::Mix) {
+        library.extend(ObjectLibrary::procedural());
+    }
+    let sets: &[psgrasp_sim::mesh::MeshSet] = match source {
+        ObjectSource::Procedural => &[],
+        ObjectSource::Ycb => &[psgrasp_sim::mesh::MeshSet::Ycb],
+        ObjectSource::RandomUrdf => &[psgrasp_sim::mesh::MeshSet::RandomUrdf],
+        ObjectSource::Mix => &[
+            psgrasp_sim::mesh::MeshSet::Ycb,
+            psgrasp_sim::mesh::MeshSet::RandomUrdf,
+        ],
+    };
+    for set in sets {
+        match psgrasp_sim::mesh::load_mesh_set(mesh_dir, *set, &mut meshes) {
+            Ok(lib) => library.extend(lib),
+            Err(e) if source == ObjectSource::Mix => {
+                eprintln!("warning: skipping {set:?} meshes: {e}");
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    Ok((library, meshes))
+}
+
+fn load_config(args: &DatagenArgs) -> anyhow::Result<GenerationConfig> {
+    let mut config = match &args.config {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("reading {}", path.display()))?;
+            toml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?
+        }
+        None => GenerationConfig::default(),
+    };
+    if args.quick {
+        config.labels = LabelConfig {
+            ..LabelConfig::quick()
+        };
+    }
+    Ok(config)
+}
+
+struct Progress {
+    total: u64,
+    done: u64,
+    start: Instant,
+    generated: u64,
+    quiet: bool,
+}
+
+impl Progress {
+    fn draw(&self) {
+        if self.quiet {
+            return;
+        }
+        let frac = if self.total == 0 {
+            1.0
+        } else {
+            self.done as f64 / self.total as f64
+        };
+        let filled = (frac * 30.0).round() as usize;
+        let elapsed = self.start.elapsed().as_secs_f64();
+        let per = if self.generated > 0 {
+            elapsed / self.generated as f64
+        } else {
+            0.0
+        };
+        let eta = per * (self.total - self.done) as f64;
+        eprint!(
+            "\r[{}{}] {}/{} scenes  {:.1} s/scene  ETA {:.0} s   ",
+            "#".repeat(filled),
+            " ".repeat(30 - filled),
+            self.done,
+            self.total,
+            per,
+            eta
+        );
+        let _ = std::io::stderr().flush();
+    }
+}
+
+fn remove_stale_temp_files(dir: &Path) {
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name.starts_with('.') && name.contains(".tmp-") {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+}
+
+fn manifest_entry(index: u64, meta: &crate::dataset::SceneMeta) -> ManifestScene {
+    ManifestScene {
+        index,
+        file: scene_file_name(index),
+        seed: meta.seed,
+        objects: meta.scene.objects.len(),
+        configurations: meta.label_stats.configurations,
+        grasps: meta.label_stats.grasps,
+        graspable_objects: meta.label_stats.graspable_objects,
+        poses_checked: meta.label_stats.poses_checked,
+        poses_free: meta.label_stats.poses_free,
+    }
+}
+
+/// Runs `psgrasp datagen`: generates (or resumes) a dataset in `args.out`, scenes in parallel.
+/// Scene `i` uses seed `derive_seed(seed, i)`, so the result does not depend on `--jobs`.
+pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.scenes > 0, "--scenes must be at least 1");
+    let jobs = args.jobs.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
+    anyhow::ensure!(jobs >= 1, "--jobs must be at least 1");
+    let config = load_config(args)?;
+    let mesh_dir = args.mesh_dir.clone().unwrap_or_else(default_mesh_dir);
+    let (library, meshes) = build_library(args.objects, &mesh_dir)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    remove_stale_temp_files(&args.out);
+
+    let names = |split: Split| -> Vec<String> {
+        library
+            .objects
+            .iter()
+            .filter(|o| o.split == split)
+            .map(|o| o.spec.name.clone())
+            .collect()
+    };
+    let mut manifest = Manifest {
+        format: "psgrasp-dataset".into(),
+        format_version: FORMAT_VERSION,
+        generator: format!("psgrasp-datagen {}", env!("CARGO_PKG_VERSION")),
+        run_seed: args.seed,
+        scenes_requested: args.scenes,
+        difficulty: args.difficulty,
+        split: args.difficulty.split(),
+        object_source: args.objects.name().into(),
+        config: config.clone(),
+        train_objects: names(Split::Train),
+        test_objects: names(Split::Test),
+        scenes: Vec::new(),
+    };
+    if Manifest::path(&args.out).exists() {
+        let old = Manifest::read(&args.out).context("reading the existing manifest")?;
+        let same = old.run_seed == manifest.run_seed
+            && old.difficulty == manifest.difficulty
+            && old.object_source == manifest.object_source
+            && old.config == manifest.config
+            && old.format_version == manifest.format_version;
+        if !same {
+            return Err(DatagenError::ManifestMismatch {
+                dir: args.out.clone(),
+            }
+            .into());
+        }
+        manifest.scenes_requested = manifest.scenes_requested.max(old.scenes_requested);
+    }
+
+    // Finished scenes are kept when their file parses and carries the expected seed.
+    let mut todo = Vec::new();
+    for i in 0..args.scenes {
+        let path = args.out.join(scene_file_name(i));
+        let seed = derive_seed(args.seed, i);
+        match read_scene_meta(&path) {
+            Ok(meta) if meta.seed == seed && meta.scene_index == i => {
+                manifest.scenes.push(manifest_entry(i, &meta))
+            }
+            _ => todo.push(i),
+        }
+    }
+    manifest.write(&args.out)?;
+
+    let mut progress = Progress {
+        total: args.scenes,
+        done: args.scenes - todo.len() as u64,
+        start: Instant::now(),
+        generated: 0,
+        quiet: args.quiet,
+    };
+    progress.draw();
+    let next = AtomicUsize::new(0);
+    let stop = AtomicBool::new(false);
+    let (tx, rx) = mpsc::channel::<Result<ManifestScene, (u64, DatagenError)>>();
+    let source_name = args.objects.name();
+    let mut first_error = None;
+    std::thread::scope(|s| {
+        for _ in 0..jobs.min(todo.len().max(1)) {
+            let tx = tx.clone();
+            let (todo, next, stop, library, meshes, config) =
+                (&todo, &next, &stop, &library, &meshes, &config);
+            let out = &args.out;
+            let (run_seed, difficulty) = (args.seed, args.difficulty);
+            s.spawn(move || loop {
+                if stop.load(Ordering::Relaxed) {
+                    break;
+                }
+                let k = next.fetch_add(1, Ordering::Relaxed);
+                let Some(&i) = todo.get(k) else { break };
+                let seed = derive_seed(run_seed, i);
+                let result =
+                    generate_record(i, seed, difficulty, source_name, library, meshes, config)
+                        .and_then(|rec| {
+                            write_scene(&out.join(scene_file_name(i)), &rec)
+                                .map(|_| manifest_entry(i, &rec.meta))
+                        })
+                        .map_err(|e| (i, e));
+                if tx.send(result).is_err() {
+                    break;
+                }
+            });
+        }
+        drop(tx);
+        for msg in rx {
+            match msg {
+                Ok(entry) => {
+                    manifest.scenes.push(entry);
+                    progress.done += 1;
+                    progress.generated += 1;
+                    progress.draw();
+                    if progress.generated.is_multiple_of(10) {
+                        manifest.scenes.sort_by_key(|e| e.index);
+                        if let Err(e) = manifest.write(&args.out) {
+                            first_error.get_or_insert(anyhow::Error::from(e));
+                            stop.store(true, Ordering::Relaxed);
+                        }
+                    }
+                }
+                Err((i, e)) => {
+                    stop.store(true, Ordering::Relaxed);
+                    first_error.get_or_insert(anyhow::Error::from(e).context(format!("scene {i}")));
+                }
+            }
+        }
+    });
+    if !args.quiet {
+        eprintln!();
+    }
+    manifest.scenes.sort_by_key(|e| e.index);
+    manifest.write(&args.out)?;
+    if let Some(e) = first_error {
+        return Err(e);
+    }
+    Ok(())
+}
+
+/// Runs `psgrasp inspect`: writes a PNG of the scene's depth image with its grasps drawn on it.
+pub fn run_inspect(args: &InspectArgs) -> anyhow::Result<()> {
+    let record =
+        read_scene(&args.scene).with_context(|| format!("reading {}", args.scene.display()))?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| args.scene.with_extension("png"));
+    let img = render_inspection(&record, args.max_grasps, !args.clean);
+    img.write_png(&out)?;
+    println!(
+        "{}: {} objects, {} grasp configurations, {} collision-free grasps -> {}",
+        args.scene.display(),
+        record.meta.scene.objects.len(),
+        record.labels.len(),
+        record.labels.iter().map(|l| l.free_count()).sum::<usize>(),
+        out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,174 @@
+//! Generating one scene record: objects → physics → rendering → noise → labels → targets.
+use crate::dataset::{SceneMeta, SceneRecord, FORMAT_VERSION};
+use crate::labels::{generate_labels, LabelConfig};
+use crate::targets::{label_grid, normal_grid};
+use crate::DatagenError;
+use psgrasp_fusion::FusionConfig;
+use psgrasp_geometry::{BinModel, CameraIntrinsics, GripperModel, Workspace};
+use psgrasp_sim::{
+    add_dex_noise, default_camera, generate_scene, MeshLibrary, NoiseConfig, ObjectLibrary,
+    SceneRecipe, SettleConfig, Split,
+};
+use serde::{Deserialize, Serialize};
+
+/// Scene difficulty (the paper's training scenes and its three test scenarios).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Difficulty {
+    /// Training scenes: 1–20 training objects, both bin sizes, noisy depth.
+    Train,
+    /// Test: 1–5 simple test objects (boxes, balls), clean depth.
+    Easy,
+    /// Test: 5–15 test objects, clean depth.
+    Medium,
+    /// Test: 15–35 test objects, noisy depth.
+    Challenging,
+}
+
+impl Difficulty {
+    /// The split whose objects this difficulty uses.
+    pub fn split(self) -> Split {
+        if self == Difficulty::Train {
+            Split::Train
+        } else {
+            Split::Test
+        }
+    }
+
+    /// Object-count range, bin choice and physics for this difficulty.
+    pub fn recipe(self, settle: &SettleConfig) -> SceneRecipe {
+        let (min_objects, max_objects, small_bin_probability) = match self {
+            Difficulty::Train => (1, 20, 0.5),
+            Difficulty::Easy => (1, 5, 0.0),
+            Difficulty::Medium => (5, 15, 0.0),
+            Difficulty::Challenging => (15, 35, 0.0),
+        };
+        SceneRecipe {
+            min_objects,
+            max_objects,
+            small_bin_probability,
+            settle: settle.clone(),
+            ..Default::default()
+        }
+    }
+
+    /// Whether the network input depth carries dex noise.
+    pub fn noisy(self) -> bool {
+        matches!(self, Difficulty::Train | Difficulty::Challenging)
+    }
+
+    /// Only simple kinds (box, ball).
+    pub fn simple_only(self) -> bool {
+        self == Difficulty::Easy
+    }
+}
+
+/// Everything that shapes a generated scene apart from its seed and difficulty.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct GenerationConfig {
+    /// Camera intrinsics (the camera is placed by `psgrasp_sim::default_camera`).
+    pub intrinsics: CameraIntrinsics,
+    /// The voxel grid of the training targets.
+    pub workspace: Workspace,
+    /// The default bin (the small bin keeps its placement).
+    pub bin: BinModel,
+    /// The gripper.
+    pub gripper: GripperModel,
+    /// Label sampling.
+    pub labels: LabelConfig,
+    /// Depth noise.
+    pub noise: NoiseConfig,
+    /// Fusion of the normal grid.
+    pub fusion: FusionConfig,
+    /// Physics.
+    pub settle: SettleConfig,
+    /// Range of the random object scale.
+    pub scale_range: [f32; 2],
+}
+
+impl Default for GenerationConfig {
+    fn default() -> Self {
+        Self {
+            intrinsics: CameraIntrinsics::default_640x480(),
+            workspace: Workspace::default(),
+            bin: BinModel::default(),
+            gripper: GripperModel::default(),
+            labels: LabelConfig::default(),
+            noise: NoiseConfig::default(),
+            fusion: FusionConfig::default(),
+            settle: SettleConfig::default(),
+            scale_range: [0.8, 1.2],
+        }
+    }
+}
+
+/// Derives independent sub-seeds from a scene seed (SplitMix64).
+pub fn derive_seed(seed: u64, stream: u64) -> u64 {
+    let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Generates one complete scene record. Deterministic for `seed` (on a given build).
+pub fn generate_record(
+    index: u64,
+    seed: u64,
+    difficulty: Difficulty,
+    object_source: &str,
+    library: &ObjectLibrary,
+    meshes: &MeshLibrary,
+    config: &GenerationConfig,
+) -> Result<SceneRecord, DatagenError> {
+    let pool = library.select(Some(difficulty.split()), difficulty.simple_only());
+    let mut recipe = difficulty.recipe(&config.settle);
+    recipe.scale_range = config.scale_range;
+    let (scene, settle) =
+        generate_scene(derive_seed(seed, 1), &pool, &config.bin, meshes, &recipe)?;
+    let camera = default_camera(scene.bin(), config.intrinsics);
+    let rendering = scene.render(&camera);
+    let noisy = difficulty.noisy();
+    let depth = if noisy {
+        add_dex_noise(&rendering.depth, derive_seed(seed, 2), &config.noise)
+    } else {
+        rendering.depth.clone()
+    };
+    let label_set = generate_labels(
+        &scene,
+        &camera,
+        &rendering,
+        &config.gripper,
+        &config.labels,
+        derive_seed(seed, 3),
+    );
+    let grid = normal_grid(&depth, &camera, &config.workspace, &config.fusion)?;
+    let labels_grid = label_grid(&label_set.labels, &config.gripper, &config.workspace);
+    let meta = SceneMeta {
+        format_version: FORMAT_VERSION,
+        generator: format!("psgrasp-datagen {}", env!("CARGO_PKG_VERSION")),
+        scene_index: index,
+        seed,
+        difficulty,
+        split: difficulty.split(),
+        object_source: object_source.to_owned(),
+        noise_applied: noisy,
+        camera,
+        workspace: config.workspace,
+        gripper: config.gripper,
+        truncation_m: grid.truncation_m,
+        scene: scene.description().clone(),
+        settle,
+        label_stats: label_set.stats,
+    };
+    Ok(SceneRecord {
+        meta,
+        depth_clean: rendering.depth,
+        depth,
+        segmentation: rendering.segmentation,
+        grid,
+        label_grid: labels_grid,
+        labels: label_set.labels,
+    })
+}

@@ -1,0 +1,80 @@
+//! Dense 6-DoF grasp labels, training targets and the on-disk dataset for psgrasp.
+//!
+//! Data flow per scene ([`generate::generate_record`]): pick objects of the right split → drop
+//! and settle them (psgrasp-sim) → render clean depth and segmentation → dex noise → labels
+//! ([`labels::generate_labels`]) → normal grid (psgrasp-fusion) and label grid
+//! ([`targets::label_grid`]) → one safetensors file ([`dataset`]). The CLI entry points are
+//! [`cli::run_datagen`] and [`cli::run_inspect`].
+#![warn(missing_docs)]
+
+pub mod cli;
+pub mod dataset;
+pub mod generate;
+pub mod inspect;
+pub mod labels;
+pub mod targets;
+pub mod verify;
+
+pub use cli::{run_datagen, run_inspect, DatagenArgs, InspectArgs, ObjectSource};
+pub use dataset::{read_scene, write_scene, Manifest, SceneMeta, SceneRecord};
+pub use generate::{derive_seed, generate_record, Difficulty, GenerationConfig};
+pub use labels::{generate_labels, GraspLabel, LabelConfig, LabelSet, LabelStats};
+pub use targets::{label_grid, LABEL_CONTACT, LABEL_EMPTY, LABEL_GRIPPER};
+
+use std::path::PathBuf;
+
+/// Errors of dataset generation and I/O.
+#[derive(Debug, thiserror::Error)]
+pub enum DatagenError {
+    /// Scene simulation failed.
+    #[error(transparent)]
+    Sim(#[from] psgrasp_sim::SimError),
+    /// Fusing the normal grid failed.
+    #[error("normal-grid fusion failed: {0}")]
+    Fusion(#[from] psgrasp_fusion::FusionError),
+    /// A file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// JSON metadata could not be encoded or decoded.
+    #[error("metadata JSON: {0}")]
+    Json(#[from] serde_json::Error),
+    /// A tensor is missing or has the wrong dtype or shape.
+    #[error("tensor '{name}': {reason}")]
+    Tensor {
+        /// Tensor name (`*` for the whole file).
+        name: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The scene file has no psgrasp metadata.
+    #[error("scene file has no '{}' metadata", dataset::METADATA_KEY)]
+    MissingMetadata,
+    /// The scene file was written by an incompatible format version.
+    #[error("scene format version {found}, this build reads {expected}")]
+    FormatVersion {
+        /// Version in the file.
+        found: u32,
+        /// Version this build reads.
+        expected: u32,
+    },
+    /// The output directory holds a dataset made with other settings.
+    #[error("{dir} holds a dataset with a different seed, difficulty, object source or config; use another --out")]
+    ManifestMismatch {
+        /// The directory.
+        dir: PathBuf,
+    },
+    /// A PNG could not be written.
+    #[error("{path}: PNG encoding failed: {reason}")]
+    Png {
+        /// The file.
+        path: PathBuf,
+        /// Encoder message.
+        reason: String,
+    },
+}
