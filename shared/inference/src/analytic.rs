@@ -11,6 +11,10 @@
 //!    estimate, while at edges the stored value is. Contacts whose outward
 //!    normal is within [`AnalyticConfig::skip_upward_normals_deg`] of straight up are skipped: their
 //!    inward ray runs down into whatever supports the object, never to a graspable opposite face.
+//!    Normals tilted upward by less than [`AnalyticConfig::vertical_face_tilt_deg`] are made
+//!    horizontal (here and at observed second contacts): a TSDF fused from a top-down view tilts the
+//!    normals of vertical side faces ~20° upward, which otherwise sends the inward baseline down
+//!    into the support and fails the opposite face's friction-cone test.
 //! 2. **Sampling (seeded).** Up to [`AnalyticConfig::max_contact_samples`] contacts are drawn without
 //!    replacement; for each, [`AnalyticConfig::directions_per_contact`] baselines are tried: the
 //!    inward normal `−n₁` itself and directions drawn uniformly in the friction cone around it.
@@ -59,6 +63,12 @@ pub struct AnalyticConfig {
     pub min_normal_norm: f32,
     /// Contacts whose outward normal is within this angle of straight up are not sampled.
     pub skip_upward_normals_deg: f32,
+    /// Normals tilted upward by less than this angle from horizontal are treated as horizontal
+    /// (first contacts and observed second contacts). A TSDF fused from a top-down view tilts
+    /// the normals of vertical side faces upward by ~20° (the projective distance shrinks with
+    /// height along the face); without this the inward baseline dives into the support and the
+    /// opposite face fails the friction cone. 0 disables it.
+    pub vertical_face_tilt_deg: f32,
     /// Most contacts sampled per frame.
     pub max_contact_samples: usize,
     /// Baselines tried per contact: `−n₁` plus `directions_per_contact − 1` drawn in the cone.
@@ -150,8 +160,9 @@ impl Default for AnalyticConfig {
             surface_search_voxels: 1.5,
             min_normal_norm: 0.5,
             skip_upward_normals_deg: 25.0,
+            vertical_face_tilt_deg: 30.0,
             max_contact_samples: 4000,
-            directions_per_contact: 4,
+            directions_per_contact: 8,
             friction_cone_half_angle_deg: 20.0,
             ray_step_voxels: 0.25,
             entry_search_voxels: 1.0,
@@ -196,6 +207,11 @@ impl AnalyticConfig {
             (0.0..=90.0).contains(&c.skip_upward_normals_deg),
             "skip_upward_normals_deg",
             "must lie in [0, 90]",
+        )?;
+        check(
+            (0.0..45.0).contains(&c.vertical_face_tilt_deg),
+            "vertical_face_tilt_deg",
+            "must lie in [0, 45)",
         )?;
         check(
             c.max_contact_samples > 0,
@@ -367,6 +383,19 @@ impl AnalyticBackend {
         self.stats
     }
 
+    /// `n` (unit) with a small upward tilt removed (see [`AnalyticConfig::vertical_face_tilt_deg`]).
+    fn deskew(&self, n: Vector3<f32>) -> Vector3<f32> {
+        let sin_tol = self.cfg.vertical_face_tilt_deg.to_radians().sin();
+        if n.z > 0.0 && n.z < sin_tol {
+            let h = Vector3::new(n.x, n.y, 0.0);
+            let len = h.norm();
+            if len > 1e-6 {
+                return h / len;
+            }
+        }
+        n
+    }
+
     /// Candidate first contacts of the grid, in voxel order.
     fn surface_points(&self, grid: &NormalGridView<'_>) -> Vec<SurfacePoint> {
         let ws = &grid.workspace;
@@ -415,7 +444,10 @@ impl AnalyticBackend {
             if self.cfg.contact_region.is_some_and(|r| !r.contains(&point)) {
                 continue;
             }
-            out.push(SurfacePoint { point, normal: n });
+            out.push(SurfacePoint {
+                point,
+                normal: self.deskew(n),
+            });
         }
         out
     }
@@ -494,7 +526,7 @@ impl AnalyticBackend {
                     return Some(if len >= self.cfg.min_normal_norm {
                         Exit::Observed {
                             width,
-                            normal: normal / len,
+                            normal: self.deskew(normal / len),
                         }
                     } else {
                         Exit::Occluded { width }
