@@ -54,6 +54,8 @@ fn four_processes_turn_every_frame_into_picks() {
     let mut cfg = test_config("e2e");
     cfg.camera.frames = 4;
     cfg.camera.synthetic.objects = 8;
+    cfg.pipeline.channel.block_timeout_ms = 120_000;
+    cfg.pipeline.loss_timeout_ms = 120_000;
     cfg.pipeline.channel.drop_policy = DropPolicy::Block;
     let (report, mut sup) = run_frames(&cfg, 4, Duration::from_secs(240), &bin_dir()).unwrap();
     sup.shutdown(Duration::from_secs(3));
@@ -213,7 +215,10 @@ fn bad_frames_end_as_error_records() {
         rotation_xyzw: [q[0], q[1], q[2], q[3]],
     });
     cfg.camera.frames = 5;
+    // Lossless replay: back-pressure instead of dropping, however slow a loaded machine is.
     cfg.pipeline.channel.drop_policy = DropPolicy::Block;
+    cfg.pipeline.channel.block_timeout_ms = 120_000;
+    cfg.pipeline.loss_timeout_ms = 120_000;
     let (report, mut sup) = run_frames(&cfg, 5, Duration::from_secs(120), &bin_dir()).unwrap();
     sup.shutdown(Duration::from_secs(3));
     std::fs::remove_dir_all(&dir).ok();
