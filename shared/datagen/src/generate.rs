@@ -122,11 +122,35 @@ pub fn generate_record(
     meshes: &MeshLibrary,
     config: &GenerationConfig,
 ) -> Result<SceneRecord, DatagenError> {
-    let pool = library.select(Some(difficulty.split()), difficulty.simple_only());
     let mut recipe = difficulty.recipe(&config.settle);
     recipe.scale_range = config.scale_range;
-    let (scene, settle) =
-        generate_scene(derive_seed(seed, 1), &pool, &config.bin, meshes, &recipe)?;
+    generate_record_with_recipe(
+        index,
+        seed,
+        difficulty,
+        &recipe,
+        object_source,
+        library,
+        meshes,
+        config,
+    )
+}
+
+/// [`generate_record`] with an explicit scene recipe (object count, bin choice) instead of the
+/// difficulty's; the difficulty still picks the object split and the noise.
+#[allow(clippy::too_many_arguments)]
+pub fn generate_record_with_recipe(
+    index: u64,
+    seed: u64,
+    difficulty: Difficulty,
+    recipe: &SceneRecipe,
+    object_source: &str,
+    library: &ObjectLibrary,
+    meshes: &MeshLibrary,
+    config: &GenerationConfig,
+) -> Result<SceneRecord, DatagenError> {
+    let pool = library.select(Some(difficulty.split()), difficulty.simple_only());
+    let (scene, settle) = generate_scene(derive_seed(seed, 1), &pool, &config.bin, meshes, recipe)?;
     let camera = default_camera(scene.bin(), config.intrinsics);
     let rendering = scene.render(&camera);
     let noisy = difficulty.noisy();

@@ -137,11 +137,12 @@ impl Default for MeshPrepConfig {
 }
 
 /// YCB objects skipped: multi-part sets and very large or flat items.
-pub const YCB_EXCLUDED: [&str; 9] = [
+pub const YCB_EXCLUDED: [&str; 10] = [
     "marbles",
     "cups",
     "blocks",
     "lego",
+    "toy_airplane",
     "chain",
     "skillet_lid",
     "nine_hole_peg",

@@ -5,7 +5,7 @@ use crate::mesh::MeshLibrary;
 use crate::objects::ObjectSpec;
 use crate::SimError;
 use nalgebra::{Isometry3, Point3, Vector3};
-use parry3d::bounding_volume::Aabb;
+use parry3d::bounding_volume::{Aabb, BoundingVolume};
 use parry3d::math::Pose;
 use parry3d::partitioning::{Bvh, BvhBuildStrategy};
 use parry3d::query::{intersection_test, Ray};
@@ -71,8 +71,11 @@ pub const SEGMENT_OBJECT0: u16 = 2;
 #[derive(Clone)]
 pub struct Scene {
     description: SceneDescription,
-    /// Object shapes followed by the five bin boxes.
+    /// Exact object shapes followed by the five bin boxes (ray casts, rendering).
     shapes: Vec<SharedShape>,
+    /// Solid shapes for box collision tests: the exact shape for primitives, the convex
+    /// decomposition for meshes (a triangle mesh has no inside and is slow to test).
+    collision_shapes: Vec<SharedShape>,
     poses: Vec<Pose>,
     bvh: Bvh,
 }
@@ -98,6 +101,7 @@ impl Scene {
     ) -> Result<Self, SimError> {
         validate_bin(&description.bin)?;
         let mut shapes = Vec::with_capacity(description.objects.len() + 5);
+        let mut collision_shapes = Vec::with_capacity(description.objects.len() + 5);
         let mut poses = Vec::with_capacity(description.objects.len() + 5);
         for obj in &description.objects {
             let pose = pose_to_glam(&obj.workspace_from_object);
@@ -106,22 +110,37 @@ impl Scene {
                     reason: "object pose is not finite",
                 });
             }
-            shapes.push(obj.spec.build_shape(meshes)?);
+            let exact = obj.spec.build_shape(meshes)?;
+            let has_mesh = obj
+                .spec
+                .parts
+                .iter()
+                .any(|p| matches!(p.primitive, crate::Primitive::Mesh { .. }));
+            collision_shapes.push(if has_mesh {
+                obj.spec.build_physics_shape(meshes)?
+            } else {
+                exact.clone()
+            });
+            shapes.push(exact);
             poses.push(pose);
         }
         for b in description.bin.boxes() {
-            shapes.push(SharedShape::new(Cuboid::new(vec_to_glam(&b.half_extents))));
+            let cuboid = SharedShape::new(Cuboid::new(vec_to_glam(&b.half_extents)));
+            collision_shapes.push(cuboid.clone());
+            shapes.push(cuboid);
             poses.push(pose_to_glam(&b.parent_from_box));
         }
         let aabbs: Vec<Aabb> = shapes
             .iter()
+            .zip(&collision_shapes)
             .zip(&poses)
-            .map(|(s, p)| s.compute_aabb(p))
+            .map(|((s, c), p)| s.compute_aabb(p).merged(&c.compute_aabb(p)))
             .collect();
         let bvh = Bvh::from_leaves(BvhBuildStrategy::Binned, &aabbs);
         Ok(Self {
             description,
             shapes,
+            collision_shapes,
             poses,
             bvh,
         })
@@ -250,7 +269,7 @@ impl Scene {
     }
 
     /// True if the oriented box intersects anything in the scene (objects and bin), skipping the
-    /// object `ignore` when given.
+    /// object `ignore` when given. Mesh objects are tested through their convex decomposition.
     pub fn box_collides(&self, b: &OrientedBox, ignore: Option<usize>) -> bool {
         self.box_hits(b, ignore, true)
     }
@@ -267,17 +286,13 @@ impl Scene {
             if Some(i) == ignore || (!include_bin && i >= n) {
                 continue;
             }
-            // A box against a composite or convex shape: solid test for convex shapes; mesh
-            // objects additionally test the box centre for full containment.
-            if let Ok(res) =
-                intersection_test(&pose, &cuboid, &self.poses[i], self.shapes[i].as_ref())
-            {
-                if res.intersecting {
-                    return true;
-                }
-            }
-            if self.shapes[i].as_trimesh().is_some()
-                && self.shapes[i].contains_point(&self.poses[i], pose.translation)
+            if intersection_test(
+                &pose,
+                &cuboid,
+                &self.poses[i],
+                self.collision_shapes[i].as_ref(),
+            )
+            .is_ok_and(|r| r.intersecting)
             {
                 return true;
             }
@@ -295,10 +310,13 @@ impl Scene {
             .intersect_aabb(&aabb)
             .map(|l| l as usize)
             .filter(|&i| {
-                intersection_test(&pose, &cuboid, &self.poses[i], self.shapes[i].as_ref())
-                    .is_ok_and(|r| r.intersecting)
-                    || (self.shapes[i].as_trimesh().is_some()
-                        && self.shapes[i].contains_point(&self.poses[i], pose.translation))
+                intersection_test(
+                    &pose,
+                    &cuboid,
+                    &self.poses[i],
+                    self.collision_shapes[i].as_ref(),
+                )
+                .is_ok_and(|r| r.intersecting)
             })
             .collect();
         out.sort_unstable();

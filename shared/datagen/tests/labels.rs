@@ -1,0 +1,215 @@
+//! Label generation checked against analytic scenes and by independent re-checks.
+use nalgebra::{Isometry3, Point3, Vector3};
+use psgrasp_datagen::labels::{check_pose, PoseCheck};
+use psgrasp_datagen::verify::{
+    contact_surface_error, gripper_hits_scene_sampled, recompute_quality,
+};
+use psgrasp_datagen::{
+    generate_labels, label_grid, GraspLabel, LabelConfig, LABEL_CONTACT, LABEL_GRIPPER,
+};
+use psgrasp_geometry::{BinModel, CameraIntrinsics, GripperModel, Workspace, N_APPROACHES};
+use psgrasp_sim::{
+    default_camera, procedural_scene, ObjectKind, ObjectSpec, Part, Primitive, Scene,
+    SceneDescription, SceneObject,
+};
+use rand::{Rng, SeedableRng};
+
+fn cube_scene(half: f32) -> Scene {
+    let bin = BinModel::default();
+    let spec = ObjectSpec {
+        name: "cube".into(),
+        kind: ObjectKind::Box,
+        parts: vec![Part {
+            object_from_part: Isometry3::identity(),
+            primitive: Primitive::Cuboid {
+                half_extents: [half; 3],
+            },
+        }],
+    };
+    let pose = Isometry3::translation(
+        bin.floor_center.x,
+        bin.floor_center.y,
+        bin.floor_center.z + half,
+    );
+    Scene::new(SceneDescription {
+        bin,
+        objects: vec![SceneObject {
+            spec,
+            workspace_from_object: pose,
+        }],
+    })
+    .unwrap()
+}
+
+fn labels_for(scene: &Scene, config: &LabelConfig, seed: u64) -> Vec<GraspLabel> {
+    let camera = default_camera(scene.bin(), CameraIntrinsics::default_640x480());
+    let rendering = scene.render(&camera);
+    generate_labels(
+        scene,
+        &camera,
+        &rendering,
+        &GripperModel::default(),
+        config,
+        seed,
+    )
+    .labels
+}
+
+#[test]
+fn isolated_cube_labels_match_the_analytic_answer() {
+    let half = 0.02;
+    let scene = cube_scene(half);
+    let config = LabelConfig::quick();
+    let labels = labels_for(&scene, &config, 5);
+    assert!(
+        labels.len() > 20,
+        "only {} labels on an isolated cube",
+        labels.len()
+    );
+    let gripper = GripperModel::default();
+    let mut quality_agree = 0;
+    for l in &labels {
+        assert!(l.quality > config.min_quality);
+        assert!(l.width <= gripper.max_opening_m - config.width_margin_m + 1e-6);
+        assert!(l.free_count() > 0);
+        // Both contacts lie on the cube surface.
+        assert!(contact_surface_error(&scene, l).unwrap() < 1e-4);
+        // Quality > 0.5 on a cube means opposite faces: width = 2·half / |cos(b, n1)|.
+        assert!(l.contact_normal.dot(&l.second_normal) < -0.999, "{l:?}");
+        let expected = 2.0 * half / l.baseline.dot(&l.contact_normal).abs();
+        assert!(
+            (l.width - expected).abs() < 1e-4,
+            "width {} vs {expected}",
+            l.width
+        );
+        let analytic = l.baseline.dot(&l.contact_normal).powi(2);
+        assert!((l.quality - analytic).abs() < 1e-4);
+        // Independent normals (finite differences of the signed distance).
+        if recompute_quality(&scene, l, 2e-4).is_some_and(|q| (q - l.quality).abs() < 0.02) {
+            quality_agree += 1;
+        }
+        // The near-vertical approaches clear a lone cube resting on the floor whenever the
+        // baseline is horizontal (contacts on the side faces).
+        if l.baseline.z.abs() < 0.05 && l.contact.z > scene.bin().floor_center.z + 0.016 {
+            assert!(
+                l.collision_free[8] || l.collision_free[9],
+                "top-down approach blocked: {l:?}"
+            );
+        }
+    }
+    // Finite differences disagree only within ~0.2 mm of an edge.
+    assert!(
+        quality_agree as f32 >= 0.95 * labels.len() as f32,
+        "{quality_agree}/{}",
+        labels.len()
+    );
+}
+
+#[test]
+fn labels_are_deterministic_for_a_seed() {
+    let scene = cube_scene(0.025);
+    let a = labels_for(&scene, &LabelConfig::quick(), 9);
+    let b = labels_for(&scene, &LabelConfig::quick(), 9);
+    let c = labels_for(&scene, &LabelConfig::quick(), 10);
+    assert_eq!(a, b);
+    assert_ne!(a, c);
+}
+
+#[test]
+fn no_label_where_the_gripper_intersects_anything() {
+    let bin = BinModel::default();
+    let scene = procedural_scene(3, 10, &bin).unwrap();
+    let config = LabelConfig::quick();
+    let labels = labels_for(&scene, &config, 3);
+    assert!(
+        !labels.is_empty(),
+        "a 10-object scene should have some grasp"
+    );
+    let gripper = GripperModel::default();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let (mut free_checked, mut blocked_checked, mut blocked_confirmed) = (0, 0, 0);
+    for _ in 0..30 {
+        let l = &labels[rng.random_range(0..labels.len())];
+        let opening = (l.width + 2.0 * config.approach_clearance_m).min(gripper.max_opening_m);
+        for i in 0..N_APPROACHES {
+            if l.collision_free[i] {
+                // Dense samples on the gripper boxes never fall inside an object or the bin.
+                assert!(
+                    !gripper_hits_scene_sampled(&scene, &gripper, l, i, opening, 0.002),
+                    "label {l:?} approach {i} intersects the scene"
+                );
+                free_checked += 1;
+            } else if matches!(
+                check_pose(&scene, &gripper, &l.grasp(i), l.object as usize, &config),
+                PoseCheck::PalmCollision | PoseCheck::FingerCollision
+            ) {
+                blocked_checked += 1;
+                if gripper_hits_scene_sampled(&scene, &gripper, l, i, opening, 0.002) {
+                    blocked_confirmed += 1;
+                }
+            }
+        }
+    }
+    assert!(free_checked > 0);
+    // Collisions shallower than the 2 mm sampling step can escape the sampled check.
+    assert!(
+        blocked_confirmed as f32 >= 0.8 * blocked_checked as f32,
+        "{blocked_confirmed}/{blocked_checked}"
+    );
+}
+
+#[test]
+fn mirrored_label_is_the_same_gripper_pose_set() {
+    let l = GraspLabel {
+        contact: Point3::new(0.2, 0.3, 0.05),
+        baseline: Vector3::new(0.8, 0.1, 0.2).normalize(),
+        contact_normal: -Vector3::x(),
+        second_normal: Vector3::x(),
+        width: 0.05,
+        quality: 0.8,
+        collision_free: std::array::from_fn(|i| i % 3 == 0),
+        object: 0,
+    };
+    let m = l.mirrored();
+    assert!((m.second_contact() - l.contact).norm() < 1e-6);
+    let g = GripperModel::default();
+    for i in 0..N_APPROACHES {
+        let a = l.grasp(N_APPROACHES - 1 - i);
+        let b = m.grasp(i);
+        assert!((a.center() - b.center()).norm() < 1e-6);
+        assert!((a.approach - b.approach).norm() < 1e-5, "approach {i}");
+        assert_eq!(m.collision_free[i], l.collision_free[N_APPROACHES - 1 - i]);
+        // The palm box is the same box (the hand is symmetric under a half turn about a).
+        let pa = g.boxes(&a.workspace_from_gripper(), 0.05)[0]
+            .parent_from_box
+            .translation
+            .vector;
+        let pb = g.boxes(&b.workspace_from_gripper(), 0.05)[0]
+            .parent_from_box
+            .translation
+            .vector;
+        assert!((pa - pb).norm() < 1e-6);
+    }
+}
+
+#[test]
+fn label_grid_marks_contacts_and_approach_points() {
+    let scene = cube_scene(0.02);
+    let labels = labels_for(&scene, &LabelConfig::quick(), 2);
+    let ws = Workspace::default();
+    let g = GripperModel::default();
+    let grid = label_grid(&labels, &g, &ws);
+    for l in &labels {
+        let [x, y, z] = ws.voxel_of(&l.contact).unwrap();
+        assert_eq!(grid[ws.index(x, y, z)], LABEL_CONTACT);
+        for i in (0..N_APPROACHES).filter(|&i| l.collision_free[i]) {
+            let [x, y, z] = ws.voxel_of(&l.grasp(i).approach_point(&g)).unwrap();
+            assert!(
+                grid[ws.index(x, y, z)] == LABEL_GRIPPER
+                    || grid[ws.index(x, y, z)] == LABEL_CONTACT
+            );
+        }
+    }
+    let marked = grid.iter().filter(|c| **c != 0).count();
+    assert!(marked > 0 && marked < grid.len() / 100);
+}
