@@ -196,3 +196,33 @@ pub fn generate_record_with_recipe(
         labels: label_set.labels,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn partial_toml_config_keeps_defaults() {
+        let cfg: GenerationConfig =
+            toml::from_str("scale_range = [0.9, 1.1]\n[labels]\ncontacts_per_object = 10\n")
+                .unwrap();
+        assert_eq!(cfg.labels.contacts_per_object, 10);
+        assert_eq!(
+            cfg.labels.baselines_per_contact,
+            LabelConfig::default().baselines_per_contact
+        );
+        assert_eq!(cfg.scale_range, [0.9, 1.1]);
+        assert_eq!(cfg.workspace, Workspace::default());
+        assert!(
+            toml::from_str::<GenerationConfig>("[labels]\ncontacts_per_object = -3\n").is_err()
+        );
+    }
+
+    #[test]
+    fn derived_seeds_differ_per_stream_and_index() {
+        let seeds: std::collections::BTreeSet<u64> = (0..100)
+            .flat_map(|i| (0..4).map(move |s| derive_seed(derive_seed(7, i), s)))
+            .collect();
+        assert_eq!(seeds.len(), 400);
+    }
+}

@@ -72,6 +72,13 @@ fn five_scene_dataset_resumes_and_inspects() {
         let rec = decode_scene(bytes).unwrap();
         assert_eq!(rec.meta.seed, derive_seed(11, i as u64));
         assert!(rec.meta.noise_applied);
+        // Training scenes hold training objects only.
+        assert!(rec
+            .meta
+            .scene
+            .objects
+            .iter()
+            .all(|o| manifest.train_objects.contains(&o.spec.name)));
         assert_eq!(
             manifest.scenes[i].grasps,
             rec.labels.iter().map(|l| l.free_count()).sum::<usize>()
