@@ -14,31 +14,32 @@ use psgrasp_sim::{
 };
 use rand::{Rng, SeedableRng};
 
-fn cube_scene(half: f32) -> Scene {
+fn single_object_scene(primitive: Primitive, half_height: f32) -> Scene {
     let bin = BinModel::default();
     let spec = ObjectSpec {
-        name: "cube".into(),
+        name: "single".into(),
         kind: ObjectKind::Box,
         parts: vec![Part {
             object_from_part: Isometry3::identity(),
-            primitive: Primitive::Cuboid {
-                half_extents: [half; 3],
-            },
+            primitive,
         }],
     };
-    let pose = Isometry3::translation(
-        bin.floor_center.x,
-        bin.floor_center.y,
-        bin.floor_center.z + half,
-    );
-    Scene::new(SceneDescription {
-        bin,
-        objects: vec![SceneObject {
-            spec,
-            workspace_from_object: pose,
-        }],
-    })
-    .unwrap()
+    let c = bin.floor_center;
+    let pose = Isometry3::translation(c.x, c.y, c.z + half_height);
+    let objects = vec![SceneObject {
+        spec,
+        workspace_from_object: pose,
+    }];
+    Scene::new(SceneDescription { bin, objects }).unwrap()
+}
+
+fn cube_scene(half: f32) -> Scene {
+    single_object_scene(
+        Primitive::Cuboid {
+            half_extents: [half; 3],
+        },
+        half,
+    )
 }
 
 fn labels_for(scene: &Scene, config: &LabelConfig, seed: u64) -> Vec<GraspLabel> {
@@ -212,4 +213,24 @@ fn label_grid_marks_contacts_and_approach_points() {
     }
     let marked = grid.iter().filter(|c| **c != 0).count();
     assert!(marked > 0 && marked < grid.len() / 100);
+}
+
+#[test]
+fn isolated_sphere_is_grasped_across_its_equator() {
+    let r = 0.02;
+    let scene = single_object_scene(Primitive::Ball { radius: r }, r);
+    let labels = labels_for(&scene, &LabelConfig::quick(), 4);
+    assert!(labels.len() > 20, "{} labels", labels.len());
+    let centre = scene.objects()[0].workspace_from_object.translation.vector;
+    for l in &labels {
+        // Antipodal on a sphere: the contact normals are radial, q = cos²(b, n).
+        let n1 = (l.contact.coords - centre).normalize();
+        assert!((n1 - l.contact_normal).norm() < 1e-3);
+        assert!((l.quality - l.baseline.dot(&n1).powi(2)).abs() < 1e-3);
+        assert!(l.width <= 2.0 * r + 1e-4);
+    }
+    // Some grasp passes near the equator with a top-down approach.
+    assert!(labels
+        .iter()
+        .any(|l| l.baseline.z.abs() < 0.3 && (l.collision_free[8] || l.collision_free[9])));
 }

@@ -421,7 +421,7 @@ pub fn procedural_object(kind: ObjectKind, prefix: &str, rng: &mut impl Rng) -> 
         ObjectKind::Cylinder => vec![Part {
             object_from_part: id,
             primitive: Primitive::Cylinder {
-                radius: uni(rng, 0.012, 0.035),
+                radius: uni(rng, 0.012, 0.03),
                 half_height: uni(rng, 0.02, 0.08),
             },
         }],
@@ -429,7 +429,7 @@ pub fn procedural_object(kind: ObjectKind, prefix: &str, rng: &mut impl Rng) -> 
             vec![Part {
                 object_from_part: id,
                 primitive: Primitive::Ball {
-                    radius: uni(rng, 0.015, 0.04),
+                    radius: uni(rng, 0.015, 0.032),
                 },
             }]
         }
@@ -510,7 +510,7 @@ pub fn procedural_object(kind: ObjectKind, prefix: &str, rng: &mut impl Rng) -> 
             ]
         }
         ObjectKind::Mug => {
-            let radius = uni(rng, 0.03, 0.045);
+            let radius = uni(rng, 0.028, 0.04);
             let half_h = uni(rng, 0.035, 0.055);
             let wall = uni(rng, 0.004, 0.007);
             let n = 12;
