@@ -172,6 +172,11 @@ pub struct LabelStats {
     pub poses_checked: usize,
     /// Gripper poses found collision-free.
     pub poses_free: usize,
+    /// Gripper poses tested in the exploration pass alone (uniform contact sampling; the free
+    /// share there is the unbiased rate of collision-free poses).
+    pub exploration_poses_checked: usize,
+    /// Collision-free poses found in the exploration pass.
+    pub exploration_poses_free: usize,
     /// Poses rejected because the palm collides.
     pub palm_collisions: usize,
     /// Poses rejected because a finger collides.
@@ -501,6 +506,8 @@ pub fn generate_labels(
     // Refinement: more samples around the contacts that produced collision-free grasps (the
     // graspable regions), spread evenly over the graspable objects.
     let explored = labels.len();
+    stats.exploration_poses_checked = stats.poses_checked;
+    stats.exploration_poses_free = stats.poses_free;
     let mut seeds: Vec<Vec<(Point3<f32>, Vector3<f32>)>> = vec![Vec::new(); n_obj];
     for l in &labels[..explored] {
         seeds[l.object as usize].push((l.contact, l.contact_normal));

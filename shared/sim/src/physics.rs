@@ -35,6 +35,11 @@ pub struct SettleConfig {
     pub density: f32,
     /// Extra thickness given to the bin's physics walls, outward only, against tunnelling (m).
     pub wall_padding_m: f32,
+    /// Linear velocity damping of the objects (1/s); rapier has no rolling friction, so a
+    /// little damping lets round objects come to rest within the time limit.
+    pub linear_damping: f32,
+    /// Angular velocity damping of the objects (1/s).
+    pub angular_damping: f32,
 }
 
 impl Default for SettleConfig {
@@ -49,6 +54,8 @@ impl Default for SettleConfig {
             restitution: 0.05,
             density: 500.0,
             wall_padding_m: 0.05,
+            linear_damping: 0.2,
+            angular_damping: 1.0,
         }
     }
 }
@@ -151,6 +158,8 @@ pub fn drop_and_settle(
                 rot,
             )))
             .ccd_enabled(true)
+            .linear_damping(config.linear_damping.max(0.0))
+            .angular_damping(config.angular_damping.max(0.0))
             .build();
         let handle = world.insert_body(body);
         let collider = ColliderBuilder::new(shape)
