@@ -107,29 +107,15 @@ pub struct PickClient {
 impl PickClient {
     /// Connects through an existing node.
     pub fn connect(node: &PipelineNode) -> Result<Self> {
-        let name =
-            ServiceName::new(&node.names.next_pick()).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let service = node
-            .node()
-            .service_builder(&name)
-            .request_response::<NextPickRequest, NextPickResponse>()
-            .max_clients(16)
-            .open_or_create()
-            .map_err(|e| anyhow::anyhow!("next-pick service: {e:?}"))?;
+        let (service, event) = node.next_pick_service()?;
         let client = service
             .client_builder()
             .create()
             .map_err(|e| anyhow::anyhow!("next-pick client: {e:?}"))?;
-        let event = node
-            .node()
-            .service_builder(&name)
-            .event()
-            .open_or_create()
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
         let notifier = event
             .notifier_builder()
             .create()
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            .map_err(|e| anyhow::anyhow!("next-pick notifier: {e:?}"))?;
         Ok(Self { client, notifier })
     }
 

@@ -192,6 +192,27 @@ fn validate_frame(
         .map_err(|e| (StatusCode::InvalidDepth, e.to_string()))
 }
 
+/// The error record a stage publishes for a frame that ends with it: an upstream error record
+/// (`input` not ok) is forwarded unchanged; otherwise `out` becomes an error raised at `stage`.
+/// Either way `end` is stamped.
+fn error_record(
+    input: &FrameHeader,
+    out: FrameHeader,
+    stage: Stage,
+    status: StatusCode,
+    msg: &str,
+    end: Stamp,
+) -> FrameHeader {
+    let mut rec = if input.is_ok() {
+        tracing::warn!("frame {}: {msg}", input.frame_id);
+        out.into_error(status, stage, msg)
+    } else {
+        out
+    };
+    rec.stamp(end);
+    rec
+}
+
 fn fusion_status(e: &FusionError) -> StatusCode {
     match e {
         FusionError::Geometry(_) => StatusCode::InvalidCamera,
@@ -262,16 +283,20 @@ pub fn run_grid_fusion(args: StageArgs) -> Result<()> {
                     Err(e) => Some((fusion_status(&e), e.to_string())),
                 }
             };
-            if !h.is_ok() {
-                let mut fwd = out;
-                fwd.stamp(Stamp::FusionEnd);
-                grid_pub.send_header(fwd)?;
-                ctx.stats.errors += 1;
-            } else if let Some((status, msg)) = error {
-                tracing::warn!("frame {}: {msg}", h.frame_id);
-                let mut rec = out.into_error(status, Stage::GridFusion, &msg);
-                rec.stamp(Stamp::FusionEnd);
-                grid_pub.send_header(rec)?;
+            let failed = if h.is_ok() {
+                error
+            } else {
+                Some((h.status(), String::new()))
+            };
+            if let Some((status, msg)) = failed {
+                grid_pub.send_header(error_record(
+                    &h,
+                    out,
+                    Stage::GridFusion,
+                    status,
+                    &msg,
+                    Stamp::FusionEnd,
+                ))?;
                 ctx.stats.errors += 1;
             }
             ctx.stats.busy_ns += started.elapsed().as_nanos() as u64;
@@ -373,14 +398,14 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
                     ctx.stats.frames_out += 1;
                 }
                 Err((status, msg)) => {
-                    let mut rec = if h.is_ok() {
-                        tracing::warn!("frame {}: {msg}", h.frame_id);
-                        out.into_error(status, Stage::Inference, &msg)
-                    } else {
-                        out
-                    };
-                    rec.stamp(Stamp::InferenceEnd);
-                    grasps_pub.send_header(rec)?;
+                    grasps_pub.send_header(error_record(
+                        &h,
+                        out,
+                        Stage::Inference,
+                        status,
+                        &msg,
+                        Stamp::InferenceEnd,
+                    ))?;
                     ctx.stats.errors += 1;
                 }
             }
@@ -520,14 +545,14 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
                     ctx.stats.frames_out += 1;
                 }
                 Err((status, msg)) => {
-                    let mut rec = if h.is_ok() {
-                        tracing::warn!("frame {}: {msg}", h.frame_id);
-                        out.into_error(status, Stage::GraspSelection, &msg)
-                    } else {
-                        out
-                    };
-                    rec.stamp(Stamp::SelectionEnd);
-                    picks_pub.send_header(rec)?;
+                    picks_pub.send_header(error_record(
+                        &h,
+                        out,
+                        Stage::GraspSelection,
+                        status,
+                        &msg,
+                        Stamp::SelectionEnd,
+                    ))?;
                     ctx.stats.errors += 1;
                 }
             }
@@ -582,32 +607,16 @@ impl NextPickServer {
             psgrasp_ipc::FrameSubscriber<PickRecord>,
         ),
     )> {
-        let names = &ctx.node.names;
-        let name = ServiceName::new(&names.next_pick()).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let service = ctx
-            .node
-            .node()
-            .service_builder(&name)
-            .request_response::<NextPickRequest, NextPickResponse>()
-            .max_clients(16)
-            .open_or_create()
-            .map_err(|e| anyhow::anyhow!("next-pick service: {e:?}"))?;
+        let (service, event) = ctx.node.next_pick_service()?;
         let server = service
             .server_builder()
             .create()
             .map_err(|e| anyhow::anyhow!("next-pick server: {e:?}"))?;
-        let event = ctx
-            .node
-            .node()
-            .service_builder(&name)
-            .event()
-            .open_or_create()
-            .map_err(|e| anyhow::anyhow!("next-pick event: {e:?}"))?;
         let listener = event
             .listener_builder()
             .create()
             .map_err(|e| anyhow::anyhow!("next-pick listener: {e:?}"))?;
-        let picks = ctx.node.subscriber::<PickRecord>(&names.picks())?;
+        let picks = ctx.node.subscriber::<PickRecord>(&ctx.node.names.picks())?;
         Ok((
             Self {
                 server,

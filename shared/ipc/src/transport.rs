@@ -209,6 +209,35 @@ impl PipelineNode {
             .map_err(setup(format!("event service {service}")))
     }
 
+    /// The next-pick request-response service and the event service of the same name that a
+    /// client notifies after each request (the server's listener sits in its WaitSet).
+    #[allow(clippy::type_complexity)]
+    pub fn next_pick_service(
+        &self,
+    ) -> Result<
+        (
+            iceoryx2::service::port_factory::request_response::PortFactory<
+                ipc::Service,
+                crate::NextPickRequest,
+                (),
+                crate::NextPickResponse,
+                (),
+            >,
+            iceoryx2::service::port_factory::event::PortFactory<ipc::Service>,
+        ),
+        IpcError,
+    > {
+        let name = self.names.next_pick();
+        let service = self
+            .node
+            .service_builder(&service_name(&name)?)
+            .request_response::<crate::NextPickRequest, crate::NextPickResponse>()
+            .max_clients(16)
+            .open_or_create()
+            .map_err(setup(format!("request-response service {name}")))?;
+        Ok((service, self.event(&name)?))
+    }
+
     /// A publisher of `[T]` slices on `service`, able to loan up to `max_len` elements
     /// (it grows on demand).
     pub fn publisher<T: Debug + ZeroCopySend + Default + Copy + 'static>(
