@@ -76,6 +76,10 @@ enum Command {
         #[arg(long)]
         failed: bool,
     },
+    /// Generate synthetic bin scenes with dense grasp labels (a training or test dataset).
+    Datagen(psgrasp_datagen::DatagenArgs),
+    /// Draw a generated scene's labelled grasps on its depth image (PNG).
+    Inspect(psgrasp_datagen::InspectArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -135,6 +139,8 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Command::Datagen(args) => psgrasp_datagen::run_datagen(&args),
+        Command::Inspect(args) => psgrasp_datagen::run_inspect(&args),
         Command::CheckConfig { config } => {
             let cfg = PipelineConfig::load(&config)?;
             println!(
