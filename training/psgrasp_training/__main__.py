@@ -1,0 +1,89 @@
+"""Command line: ``python -m psgrasp_training {train,export,init,hitrate} ...``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m psgrasp_training", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+
+    t = sub.add_parser("train", help="train a model (resumable), validate and export")
+    t.add_argument("--config", required=True, type=Path, help="TOML config (training/configs/*.toml)")
+    t.add_argument("--data", required=True, type=Path, help="psgrasp dataset directory (manifest.json + scenes)")
+    t.add_argument("--out", required=True, type=Path, help="run directory (checkpoints, log.csv, model/)")
+    t.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoints/latest.pt")
+    t.add_argument("--max-minutes", type=float, default=None, help="wall-clock limit; stops cleanly, saves, exports")
+    t.add_argument("--iterations", type=int, default=None, help="override train.iterations")
+    t.add_argument("--threads", type=int, default=None, help="override train.threads")
+    t.add_argument("--device", default=None, help="override train.device (cpu, cuda, auto)")
+    t.add_argument("--no-export", action="store_true", help="do not export RUN_DIR/model at the end")
+
+    e = sub.add_parser("export", help="export a run to unet.onnx + mlp.onnx + card.json")
+    e.add_argument("--run", required=True, type=Path, help="run directory")
+    e.add_argument("--out", required=True, type=Path, help="model directory to write")
+    e.add_argument("--reference", type=Path, default=None, help="scene file for reference.safetensors")
+    e.add_argument("--contact-probability", type=float, default=None,
+                   help="card contact threshold (default: the config's export.contact_probability)")
+
+    i = sub.add_parser("init", help="create a run directory holding an untrained model (step 0)")
+    i.add_argument("--config", required=True, type=Path)
+    i.add_argument("--out", required=True, type=Path, help="run directory")
+    i.add_argument("--data", type=Path, default=None, help="dataset whose grid/gripper geometry to record")
+
+    h = sub.add_parser("hitrate", help="measure the neighbour hit-rate of the contact-point rules on a dataset")
+    h.add_argument("--config", required=True, type=Path)
+    h.add_argument("--data", required=True, type=Path)
+    h.add_argument("--scenes", type=int, default=10)
+    h.add_argument("--radius-mm", type=float, nargs="*", default=[3.0, 4.5, 6.0])
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code."""
+    args = _parser().parse_args(argv)
+    from .checkpoint import RunError
+    from .config import ConfigError, load_config
+    from .data import DatasetError
+    from .export import ExportError
+
+    try:
+        if args.command == "train":
+            from .train import train
+
+            cfg = load_config(args.config)
+            if args.iterations is not None:
+                cfg.train.iterations = args.iterations
+            if args.threads is not None:
+                cfg.train.threads = args.threads
+            if args.device is not None:
+                cfg.train.device = args.device
+            if args.max_minutes is not None:
+                cfg.train.max_minutes = args.max_minutes
+            cfg.validate()
+            train(cfg, args.data, args.out, resume=args.resume, export=not args.no_export)
+        elif args.command == "export":
+            from .export import export_run
+
+            card = export_run(args.run, args.out, args.reference, args.contact_probability)
+            print(f"wrote {args.out} ({card['name']}, {card['training']['iterations']} iterations)")
+        elif args.command == "init":
+            from .train import init_run
+
+            init_run(load_config(args.config), args.out, args.data)
+            print(f"wrote untrained run {args.out}")
+        elif args.command == "hitrate":
+            from .train import hitrate_report
+
+            hitrate_report(load_config(args.config), args.data, args.scenes, [r / 1000 for r in args.radius_mm])
+    except (ConfigError, DatasetError, RunError, ExportError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,176 @@
+"""The two-stage network: a 3D residual U-Net (label grid + encoder feature grids) and the MLP head.
+
+Graph contract (network.md v1):
+* U-Net input ``normal_grid`` [1, 3, X, Y, Z]; outputs ``label_logits`` [1, 3, X, Y, Z] (classes
+  empty, contact, gripper) and ``enc0..enc{L-1}`` [1, C_l, X/2^l, Y/2^l, Z/2^l], C_l = base·2^l.
+* MLP input ``features`` [N, F], F = Σ C_l; outputs ``baseline`` [N, 3] (unit), ``kappa`` [N],
+  ``width`` [N] (m), ``quality_prior`` [N], ``collision_prior`` [N, 18], all activations in-graph.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from .config import Config
+
+#: Approach directions per contact point (paper: n_r = 18).
+N_APPROACHES = 18
+#: Classes of the label grid, in channel order.
+CLASSES = ("empty", "contact", "gripper")
+#: Raw outputs of the MLP's last layer: baseline 3, κ′ 1, width 1, quality 1, collision 18.
+MLP_RAW_OUTPUTS = 3 + 1 + 1 + 1 + N_APPROACHES
+#: ε of the baseline normalisation.
+BASELINE_EPS = 1e-8
+
+
+def _norm(channels: int, kind: str) -> nn.Module:
+    return nn.BatchNorm3d(channels) if kind == "batch" else nn.Identity()
+
+
+class ConvNormAct(nn.Sequential):
+    """Conv3d → norm → ReLU."""
+
+    def __init__(self, cin: int, cout: int, kernel: int, stride: int, norm: str):
+        super().__init__(
+            nn.Conv3d(cin, cout, kernel, stride=stride, padding=(kernel - 1) // 2 if stride == 1 else 0,
+                      bias=norm == "none"),
+            _norm(cout, norm),
+            nn.ReLU(inplace=True),
+        )
+
+
+class ResBlock(nn.Module):
+    """Residual block: (3³ conv, norm, ReLU, 3³ conv, norm) + (1³ conv if the width changes), ReLU."""
+
+    def __init__(self, cin: int, cout: int, norm: str):
+        super().__init__()
+        bias = norm == "none"
+        self.conv1 = nn.Conv3d(cin, cout, 3, padding=1, bias=bias)
+        self.norm1 = _norm(cout, norm)
+        self.conv2 = nn.Conv3d(cout, cout, 3, padding=1, bias=bias)
+        self.norm2 = _norm(cout, norm)
+        self.skip = (
+            nn.Identity() if cin == cout else nn.Sequential(nn.Conv3d(cin, cout, 1, bias=bias), _norm(cout, norm))
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = F.relu(self.norm1(self.conv1(x)))
+        y = self.norm2(self.conv2(y))
+        return F.relu(y + self.skip(x))
+
+
+class ResUNet3d(nn.Module):
+    """3D residual U-Net returning label logits and the encoder feature grid of every level."""
+
+    def __init__(self, levels: int = 4, base_channels: int = 8, blocks_per_level: int = 1, norm: str = "batch",
+                 in_channels: int = 3, classes: int = 3):
+        super().__init__()
+        self.levels = levels
+        self.channels = [base_channels * 2**level for level in range(levels)]
+        ch = self.channels
+        self.stem = ConvNormAct(in_channels, ch[0], 3, 1, norm)
+        self.down = nn.ModuleList([ConvNormAct(ch[level - 1], ch[level], 2, 2, norm) for level in range(1, levels)])
+        self.enc = nn.ModuleList(
+            [nn.Sequential(*[ResBlock(ch[level], ch[level], norm) for _ in range(blocks_per_level)])
+             for level in range(levels)]
+        )
+        self.up = nn.ModuleList(
+            [nn.ConvTranspose3d(ch[level + 1], ch[level], 2, stride=2) for level in range(levels - 1)]
+        )
+        self.dec = nn.ModuleList(
+            [nn.Sequential(ResBlock(2 * ch[level], ch[level], norm),
+                           *[ResBlock(ch[level], ch[level], norm) for _ in range(blocks_per_level - 1)])
+             for level in range(levels - 1)]
+        )
+        self.head = nn.Conv3d(ch[0], classes, 1)
+
+    def forward(self, normal_grid: torch.Tensor) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """normal_grid [B, 3, X, Y, Z] → (label_logits [B, 3, X, Y, Z], [enc0, …, enc{L-1}])."""
+        x = self.enc[0](self.stem(normal_grid))
+        encs = [x]
+        for level in range(1, self.levels):
+            x = self.enc[level](self.down[level - 1](x))
+            encs.append(x)
+        for level in range(self.levels - 2, -1, -1):
+            x = self.dec[level](torch.cat([self.up[level](x), encs[level]], dim=1))
+        return self.head(x), encs
+
+
+class GraspMlp(nn.Module):
+    """MLP head: features [N, F] → baseline, κ, width, quality prior, collision priors."""
+
+    def __init__(self, feature_dim: int, hidden: list[int], kappa0: float = 25.0, kappa_eps: float = 1e-6,
+                 max_opening_m: float = 0.08, kappa_learned: bool = True):
+        super().__init__()
+        layers: list[nn.Module] = []
+        width = feature_dim
+        for h in hidden:
+            layers += [nn.Linear(width, h), nn.ReLU(inplace=True)]
+            width = h
+        self.body = nn.Sequential(*layers)
+        self.out = nn.Linear(width, MLP_RAW_OUTPUTS)
+        self.kappa0 = float(kappa0)
+        self.kappa_eps = float(kappa_eps)
+        self.max_opening_m = float(max_opening_m)
+        self.kappa_learned = bool(kappa_learned)
+
+    def forward(self, features: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Returns dict with ``baseline`` [N,3], ``kappa`` [N], ``width`` [N], ``quality_prior`` [N],
+        ``collision_prior`` [N,18]."""
+        raw = self.out(self.body(features))
+        b = raw[:, 0:3]
+        baseline = b / torch.clamp(torch.sqrt((b * b).sum(dim=1, keepdim=True)), min=BASELINE_EPS)
+        width = self.max_opening_m * torch.sigmoid(raw[:, 4])
+        if self.kappa_learned:
+            kappa_inv = F.softplus(raw[:, 3])
+            kappa = torch.clamp(self.kappa0 / (kappa_inv + self.kappa_eps), min=self.kappa0, max=4.0 * self.kappa0)
+        else:
+            kappa = torch.full_like(width, self.kappa0)
+        return {
+            "baseline": baseline,
+            "kappa": kappa,
+            "width": width,
+            "quality_prior": torch.sigmoid(raw[:, 5]),
+            "collision_prior": torch.sigmoid(raw[:, 6:]),
+        }
+
+
+#: MLP output names in graph order.
+MLP_OUTPUTS = ("baseline", "kappa", "width", "quality_prior", "collision_prior")
+
+
+class GraspNet(nn.Module):
+    """U-Net + MLP, built from a :class:`Config`."""
+
+    def __init__(self, cfg: Config):
+        super().__init__()
+        m = cfg.model
+        self.unet = ResUNet3d(m.levels, m.base_channels, m.blocks_per_level, m.norm)
+        self.mlp = GraspMlp(cfg.feature_dim(), list(m.mlp_hidden), m.kappa0, m.kappa_eps, cfg.grid.max_opening_m,
+                            cfg.kappa_learned)
+
+
+class UnetExport(nn.Module):
+    """ONNX wrapper: one tensor per output (label_logits, enc0, …)."""
+
+    def __init__(self, unet: ResUNet3d):
+        super().__init__()
+        self.unet = unet
+
+    def forward(self, normal_grid: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        logits, encs = self.unet(normal_grid)
+        return (logits, *encs)
+
+
+class MlpExport(nn.Module):
+    """ONNX wrapper: outputs in MLP_OUTPUTS order."""
+
+    def __init__(self, mlp: GraspMlp):
+        super().__init__()
+        self.mlp = mlp
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        out = self.mlp(features)
+        return tuple(out[name] for name in MLP_OUTPUTS)
