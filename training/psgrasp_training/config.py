@@ -76,8 +76,8 @@ class ContactConfig:
     #: "jittered-contact": a random true grasp contact inside the voxel plus a uniform jitter in a ball
     #: of radius jitter_m; "voxel-uniform": a uniform random point inside the voxel (the paper's rule).
     rule: str = "jittered-contact"
-    #: Jitter radius of the jittered-contact rule (m).
-    jitter_m: float = 0.002
+    #: Jitter radius of the jittered-contact rule (m); ≤ neighbour_radius_m guarantees ≥ 1 neighbour.
+    jitter_m: float = 0.003
     #: At most this many ground-truth contact voxels (one point each) per step.
     max_points: int = 1024
     #: After the MLP warm-up, additionally up to this many points in predicted contact voxels that are

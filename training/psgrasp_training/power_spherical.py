@@ -19,11 +19,18 @@ def log_normalizer(kappa: torch.Tensor) -> torch.Tensor:
     return torch.log1p(kappa) - (kappa + 2.0) * _LOG2 - _LOGPI
 
 
+#: μᵀx is clamped to [−1 + DOT_FLOOR, 1] so that antipodal points give a finite (very low) density.
+DOT_FLOOR = 1e-6
+
+
+def log_prob_from_dot(dot: torch.Tensor, kappa: torch.Tensor) -> torch.Tensor:
+    """log p as a function of μᵀx (broadcast with κ)."""
+    return log_normalizer(kappa) + kappa * torch.log1p(dot.clamp(-1.0 + DOT_FLOOR, 1.0))
+
+
 def log_prob(x: torch.Tensor, mu: torch.Tensor, kappa: torch.Tensor) -> torch.Tensor:
     """log p(x | μ, κ); x, μ: [..., 3] unit vectors, κ: [...] (broadcast)."""
-    dot = (mu * x).sum(-1).clamp(-1.0, 1.0)
-    # log1p(dot) at dot = −1 is −inf; κ·(−inf) = −inf is the correct limit for κ > 0.
-    return log_normalizer(kappa) + kappa * torch.log1p(dot)
+    return log_prob_from_dot((mu * x).sum(-1), kappa)
 
 
 class PowerSpherical:

@@ -1,15 +1,56 @@
-"""Training loop (placeholder: init only)."""
+"""Training loop, validation and the run-directory workflow.
+
+Determinism: every random draw of iteration k comes from a generator seeded with (seed, k) and the
+scene order of epoch e from one seeded with (seed, e); a resumed run therefore continues exactly
+like an uninterrupted one (same weights on CPU).
+"""
 
 from __future__ import annotations
 
+import csv
+import math
+import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 
-from .checkpoint import DatasetInfo, save_checkpoint, write_json
+from .checkpoint import DatasetInfo, RunError, load_checkpoint, save_checkpoint, write_json
 from .config import Config
-from .data import SceneDataset
-from .model import GraspNet
+from .data import Scene, SceneDataset, flip_scene
+from .decode import class_probabilities, sample_features
+from .export import export_model
+from .losses import (GraspIndex, contact_voxel_points, focal_loss, grasp_loss, grasp_targets,
+                     predicted_voxel_points)
+from .model import CLASSES, GraspNet
+
+LOG_FIELDS = ["step", "loss", "label", "grasp", "baseline", "approach", "width", "quality", "collision", "points",
+              "hit_rate", "lr", "seconds", "elapsed_s"]
+_MASK63 = (1 << 63) - 1
+
+
+def derive_seed(*parts: int) -> int:
+    """Mix integers into a 63-bit seed (splitmix64 steps)."""
+    x = 0x9E3779B97F4A7C15
+    for p in parts:
+        x = (x ^ (int(p) & 0xFFFFFFFFFFFFFFFF)) * 0xBF58476D1CE4E5B9 & 0xFFFFFFFFFFFFFFFF
+        x = (x ^ (x >> 31)) * 0x94D049BB133111EB & 0xFFFFFFFFFFFFFFFF
+        x ^= x >> 29
+    return x & _MASK63
+
+
+def setup_torch(cfg: Config) -> torch.device:
+    """Threads, determinism and the device."""
+    if cfg.train.threads > 0:
+        torch.set_num_threads(cfg.train.threads)
+    if cfg.train.deterministic:
+        torch.use_deterministic_algorithms(True, warn_only=True)
+    dev = cfg.train.device
+    if dev == "auto":
+        dev = "cuda" if torch.cuda.is_available() else "cpu"
+    if dev == "cuda" and not torch.cuda.is_available():
+        raise RunError("train.device = cuda but no CUDA device is available")
+    return torch.device(dev)
 
 
 def apply_dataset_geometry(cfg: Config, info: DatasetInfo) -> None:
@@ -34,3 +75,263 @@ def init_run(cfg: Config, run_dir: Path, data: Path | None = None) -> None:
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json(run_dir / "config.json", cfg.to_dict())
     save_checkpoint(run_dir, 0, cfg, net, info)
+
+
+def learning_rate(cfg: Config, step: int) -> float:
+    """Exponential decay from lr (step 0) to lr_end (last step)."""
+    t = cfg.train
+    frac = step / max(1, t.iterations - 1)
+    return t.lr * (t.lr_end / t.lr) ** min(1.0, frac)
+
+
+def scene_to(scene: Scene, device: torch.device) -> Scene:
+    """Copy of a scene with its tensors on a device."""
+    if device.type == "cpu":
+        return scene
+    return replace(scene, normals=scene.normals.to(device), labels=scene.labels.to(device),
+                   contact=scene.contact.to(device), baseline=scene.baseline.to(device),
+                   width=scene.width.to(device), quality=scene.quality.to(device),
+                   collision_free=scene.collision_free.to(device))
+
+
+def targets_to(targets, device: torch.device):
+    """Move GraspTargets to a device."""
+    if device.type == "cpu":
+        return targets
+    nb = replace(targets.neighbours, idx=targets.neighbours.idx.to(device), dist=targets.neighbours.dist.to(device))
+    return replace(targets, neighbours=nb, has=targets.has.to(device), nu_hat=targets.nu_hat.to(device),
+                   width_hat=targets.width_hat.to(device), quality=targets.quality.to(device),
+                   collision=targets.collision.to(device))
+
+
+def scene_for_step(ds: SceneDataset, cfg: Config, step: int) -> tuple[Scene, torch.Generator]:
+    """The (augmented) training scene of an iteration and the iteration's generator."""
+    n = len(ds.train_entries)
+    epoch, pos = divmod(step, n)
+    perm = torch.randperm(n, generator=torch.Generator().manual_seed(derive_seed(cfg.seed, 1, epoch)))
+    scene = ds.scene(ds.train_entries[int(perm[pos])])
+    g = torch.Generator().manual_seed(derive_seed(cfg.seed, 2, step))
+    if cfg.data.flip_augmentation:
+        fx, fy = (torch.rand(2, generator=g) < 0.5).tolist()
+        scene = flip_scene(scene, fx, fy)
+    return scene, g
+
+
+def training_step(net: GraspNet, scene: Scene, cfg: Config, g: torch.Generator, device: torch.device,
+                  with_mlp: bool) -> dict[str, torch.Tensor | float]:
+    """Forward pass and loss of one scene (no optimiser step)."""
+    dev_scene = scene_to(scene, device)
+    logits, encs = net.unet(dev_scene.normals.unsqueeze(0))
+    label = focal_loss(logits, dev_scene.labels.unsqueeze(0), cfg.loss.class_weights, cfg.loss.focal_gamma)
+    out: dict[str, torch.Tensor | float] = {"label": label}
+    if with_mlp:
+        probs = class_probabilities(logits)
+        points = contact_voxel_points(scene, cfg, g)
+        extra = predicted_voxel_points(scene, probs[0, 1].detach().cpu(), cfg, g)
+        points = torch.cat([points, extra], 0)
+        index = GraspIndex(scene.contact, cfg.contacts.neighbour_radius_m)
+        targets = targets_to(grasp_targets(scene, index, points, cfg), device)
+        pts = points.to(device)
+        features = sample_features(encs, pts, scene.extent_m)
+        mlp_out = net.mlp(features)
+        terms = grasp_loss(dev_scene, targets, pts, mlp_out, probs, cfg, cfg.grid.approach_depth_m)
+        out.update(terms)
+        out["points"] = float(len(points))
+        out["hit_rate"] = float(targets.has.float().mean()) if len(points) else 0.0
+        out["loss"] = cfg.loss.label * label + cfg.loss.grasp * terms["grasp"]
+    else:
+        out["loss"] = cfg.loss.label * label
+    return out
+
+
+@torch.no_grad()
+def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device, max_scenes: int = 0) -> dict:
+    """Validation metrics on the held-out scenes.
+
+    IoU per class of the argmax label grid (summed over scenes); at training-rule points in true
+    contact voxels (fixed seed per scene): baseline angle error = directed angle between ν and the
+    closest neighbour baseline, width error = |w − that neighbour's width|, quality MAE of the
+    decoded q against the max neighbour quality, and the neighbour hit-rate.
+    """
+    net.eval()
+    entries = ds.val_entries[: max_scenes] if max_scenes > 0 else ds.val_entries
+    inter = torch.zeros(3, dtype=torch.float64)
+    union = torch.zeros(3, dtype=torch.float64)
+    angles, width_err, q_err, hits, npts = [], [], [], 0, 0
+    for entry in entries:
+        scene = ds.scene(entry)
+        dev_scene = scene_to(scene, device)
+        logits, encs = net.unet(dev_scene.normals.unsqueeze(0))
+        pred = logits[0].argmax(0).cpu()
+        for c in range(3):
+            p, t = pred == c, scene.labels == c
+            inter[c] += (p & t).sum()
+            union[c] += (p | t).sum()
+        g = torch.Generator().manual_seed(derive_seed(cfg.seed, 3, scene.index))
+        points = contact_voxel_points(scene, cfg, g)
+        if len(points) == 0:
+            continue
+        targets = grasp_targets(scene, GraspIndex(scene.contact, cfg.contacts.neighbour_radius_m), points, cfg)
+        probs = class_probabilities(logits)
+        pts = points.to(device)
+        out = {k: v.cpu() for k, v in net.mlp(sample_features(encs, pts, scene.extent_m)).items()}
+        from .decode import sample_grid
+
+        q = sample_grid(probs[:, 1:2], pts, scene.extent_m)[:, 0].cpu() * out["quality_prior"]
+        q_err.append((q - targets.quality).abs())
+        npts += len(points)
+        h = targets.has.nonzero().reshape(-1)
+        hits += len(h)
+        if len(h):
+            idx = targets.neighbours.idx[h]
+            valid = idx >= 0
+            b_n = scene.baseline[idx.clamp(min=0)]
+            cos = (b_n * out["baseline"][h].unsqueeze(1)).sum(-1).clamp(-1, 1)
+            ang = torch.where(valid, torch.rad2deg(torch.acos(cos)), torch.full_like(cos, math.inf))
+            best_ang, best = ang.min(1)
+            angles.append(best_ang)
+            w_best = scene.width[idx.clamp(min=0).gather(1, best.unsqueeze(1)).squeeze(1)]
+            width_err.append((out["width"][h] - w_best).abs() * 1000.0)
+    net.train()
+    iou = {name: float(inter[c] / union[c]) if union[c] > 0 else 0.0 for c, name in enumerate(CLASSES)}
+
+    def mean(xs):
+        return float(torch.cat(xs).mean()) if xs and sum(len(x) for x in xs) else 0.0
+
+    return {"scenes": len(entries), "iou": iou, "baseline_angle_error_deg": mean(angles),
+            "width_error_mm": mean(width_err), "quality_mae": mean(q_err), "points": npts,
+            "hit_rate": hits / npts if npts else 0.0}
+
+
+def _open_log(run_dir: Path, resume_step: int):
+    path = run_dir / "log.csv"
+    rows = []
+    if resume_step > 0 and path.is_file():
+        with path.open() as f:
+            rows = [r for r in csv.DictReader(f) if int(r["step"]) < resume_step]
+    f = path.open("w", newline="")
+    w = csv.DictWriter(f, fieldnames=LOG_FIELDS)
+    w.writeheader()
+    w.writerows(rows)
+    f.flush()
+    return f, w
+
+
+def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: bool = True, log=print) -> dict:
+    """Train (or resume) a run; returns the final validation metrics."""
+    run_dir = Path(run_dir)
+    device = setup_torch(cfg)
+    ds = SceneDataset(data, cfg)
+    apply_dataset_geometry(cfg, ds.info)
+    net = GraspNet(cfg)
+    start = 0
+    elapsed0 = 0.0
+    opt_state = None
+    if resume:
+        state = load_checkpoint(run_dir)
+        old: Config = state["config"]
+        if old.to_dict()["model"] != cfg.to_dict()["model"] or old.variant != cfg.variant or old.seed != cfg.seed:
+            raise RunError(f"{run_dir}: --resume with a different model, variant or seed than the checkpoint")
+        if state["dataset"].manifest_sha256 != ds.info.manifest_sha256:
+            log("warning: the dataset manifest changed since the checkpoint (resuming anyway)")
+        net.load_state_dict(state["model"])
+        start, elapsed0, opt_state = state["step"], state.get("elapsed_s", 0.0), state["optimizer"]
+    else:
+        torch.manual_seed(cfg.seed)
+        net = GraspNet(cfg)
+    net.to(device).train()
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.train.lr)
+    if opt_state is not None:
+        opt.load_state_dict(opt_state)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_json(run_dir / "config.json", cfg.to_dict())
+    write_json(run_dir / "dataset.json", ds.info.__dict__)
+    logf, logw = _open_log(run_dir, start)
+    t_cfg = cfg.train
+    log(f"training {cfg.model_name}: {ds.info.train_scenes} train / {ds.info.val_scenes} val scenes, "
+        f"{sum(p.numel() for p in net.parameters())} parameters, device {device}, threads {torch.get_num_threads()}, "
+        f"steps {start}..{t_cfg.iterations}")
+    t0 = time.monotonic()
+    validation = None
+    step = start
+    stopped = False
+    try:
+        while step < t_cfg.iterations:
+            if t_cfg.max_minutes > 0 and time.monotonic() - t0 > 60.0 * t_cfg.max_minutes:
+                log(f"wall-clock limit of {t_cfg.max_minutes} min reached at step {step}: stopping")
+                stopped = True
+                break
+            ts = time.monotonic()
+            lr = learning_rate(cfg, step)
+            for group in opt.param_groups:
+                group["lr"] = lr
+            scene, g = scene_for_step(ds, cfg, step)
+            out = training_step(net, scene, cfg, g, device, step >= t_cfg.mlp_warmup_iterations)
+            loss = out["loss"]
+            if not torch.isfinite(loss):
+                raise RunError(f"non-finite loss at step {step} (scene {scene.index}): "
+                               + ", ".join(f"{k}={float(v):.4g}" for k, v in out.items()))
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            secs = time.monotonic() - ts
+            out = {k: float(v.detach()) if isinstance(v, torch.Tensor) else v for k, v in out.items()}
+            row = {k: f"{out[k]:.6g}" if k in out else "" for k in LOG_FIELDS}
+            row.update(step=step, lr=f"{lr:.6g}", seconds=f"{secs:.3f}",
+                       elapsed_s=f"{elapsed0 + time.monotonic() - t0:.1f}")
+            logw.writerow(row)
+            if step % t_cfg.log_every == 0 or step == t_cfg.iterations:
+                logf.flush()
+                parts = " ".join(f"{k} {float(out[k]):.4f}" for k in ("loss", "label", "baseline", "approach",
+                                                                       "width", "quality", "collision") if k in out)
+                hr = f" hit {out['hit_rate']:.2f}" if "hit_rate" in out else ""
+                log(f"step {step}/{t_cfg.iterations} {parts}{hr} lr {lr:.2e} {secs:.2f} s/step")
+            if t_cfg.validate_every > 0 and step % t_cfg.validate_every == 0 and step < t_cfg.iterations:
+                validation = evaluate(net, ds, cfg, device, t_cfg.max_val_scenes)
+                log(f"validation @ {step}: {validation}")
+            if t_cfg.checkpoint_every > 0 and step % t_cfg.checkpoint_every == 0:
+                save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed0 + time.monotonic() - t0)
+    finally:
+        logf.close()
+    validation = evaluate(net, ds, cfg, device, t_cfg.max_val_scenes)
+    log(f"validation @ {step}: {validation}")
+    write_json(run_dir / "validation.json", {"step": step, **validation})
+    save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed0 + time.monotonic() - t0)
+    if export:
+        ref = ds.root / (ds.val_entries or ds.train_entries)[0]["file"]
+        export_model(net.cpu(), cfg, ds.info, run_dir / "model", step, validation, ref, log=log)
+        log(f"exported {run_dir / 'model'}")
+    if stopped:
+        log("stopped early by the wall-clock limit; resume with --resume")
+    return validation
+
+
+def hitrate_report(cfg: Config, data: Path, scenes: int, radii_m: list[float], log=print) -> dict:
+    """Neighbour hit-rate (share of points with ≥ 1 true grasp within r) of the contact-point rules."""
+    ds = SceneDataset(data, cfg)
+    entries = (ds.train_entries + ds.val_entries)[:scenes]
+    from .decode import subvoxel_points
+
+    results = {}
+    for rule in ("voxel-uniform", "jittered-contact", "subvoxel-centres"):
+        for r in radii_m:
+            c = replace(cfg, contacts=replace(cfg.contacts, rule=rule if rule != "subvoxel-centres" else "voxel-uniform",
+                                              neighbour_radius_m=r, max_points=10**9))
+            hit = tot = nsum = 0
+            for e in entries:
+                scene = ds.scene(e)
+                g = torch.Generator().manual_seed(derive_seed(cfg.seed, 4, scene.index))
+                if rule == "subvoxel-centres":
+                    vox = torch.nonzero(scene.labels.reshape(-1) == 1).reshape(-1)
+                    pts = subvoxel_points(vox, scene.dims, scene.voxel_size_m)
+                else:
+                    pts = contact_voxel_points(scene, c, g)
+                nb = GraspIndex(scene.contact, max(r, scene.voxel_size_m)).query(pts, r, c.contacts.max_neighbours)
+                hit += int((nb.count > 0).sum())
+                nsum += int(nb.count.sum())
+                tot += len(pts)
+            results[(rule, r)] = (hit / max(tot, 1), nsum / max(hit, 1), tot)
+            log(f"{rule:17s} r = {r * 1000:4.1f} mm: hit-rate {hit / max(tot, 1):.3f}, "
+                f"mean neighbours (hits) {nsum / max(hit, 1):.1f}, points {tot}")
+    return results
