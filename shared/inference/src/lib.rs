@@ -4,7 +4,7 @@
 //! fusion) and returns dense [`GraspConfiguration`]s — a contact point, a baseline, 18 approach
 //! vectors with collision scores, an opening width, an antipodal quality and a concentration `κ`.
 //! Backends are built from a [`BackendConfig`] (TOML/JSON, tagged by `kind`) with
-//! [`backend_from_config`]; the learned ONNX backends will be further `kind`s.
+//! [`backend_from_config`] or [`backend_for_workspace`].
 //!
 //! The crate also holds what backends and grasp selection share:
 //!
@@ -16,17 +16,25 @@
 //!
 //! The analytic backend ([`AnalyticBackend`]) is the GPD-style geometric baseline: antipodal contact
 //! pairs found by casting rays through the TSDF, collision scores from the occupancy grid.
+//!
+//! The learned backend ([`LearnedBackend`], `kind = "learned"`) runs the paper's two-stage network
+//! exported to ONNX (a model directory with a checked model card) on tract or, with the cargo
+//! feature `ort`, ONNX Runtime; see [`learned`].
 #![warn(missing_docs)]
 
 pub mod analytic;
+pub mod learned;
 pub mod occupancy;
 pub mod synthetic;
 
 pub use analytic::{AnalyticBackend, AnalyticConfig, AnalyticStats, ContactRegion};
+pub use learned::{
+    LearnedBackend, LearnedConfig, LearnedModel, ModelCard, ModelError, RuntimeKind, StageTimings,
+};
 pub use occupancy::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
 
 use psgrasp_fusion::NormalGridView;
-use psgrasp_geometry::{GeometryError, GraspConfiguration, GripperModel};
+use psgrasp_geometry::{GeometryError, GraspConfiguration, GripperModel, Workspace};
 use serde::{Deserialize, Serialize};
 
 /// Largest |normalised TSDF| accepted by [`validate_grid`]; values are defined in [−1, 1] and this
@@ -79,6 +87,9 @@ pub enum InferenceError {
         /// What the valid range is.
         reason: &'static str,
     },
+    /// A learned model could not be loaded or run (card mismatch, corrupt file, runtime error).
+    #[error("learned model: {0}")]
+    Model(#[from] ModelError),
     /// A backend failed for a reason of its own (model file, runtime, device ...).
     #[error("backend `{backend}` failed")]
     Backend {
@@ -109,6 +120,8 @@ pub trait InferenceBackend: Send {
 pub enum BackendConfig {
     /// The geometric antipodal backend ([`AnalyticBackend`]).
     Analytic(AnalyticConfig),
+    /// The learned ONNX backend ([`LearnedBackend`]).
+    Learned(LearnedConfig),
 }
 
 impl Default for BackendConfig {
@@ -122,17 +135,41 @@ impl BackendConfig {
     pub fn kind(&self) -> &'static str {
         match self {
             Self::Analytic(_) => "analytic",
+            Self::Learned(_) => "learned",
         }
     }
 }
 
-/// Builds the backend described by `cfg` for `gripper`, validating both.
+/// Builds the backend described by `cfg` for `gripper`, validating both. A learned model's card
+/// is checked against `gripper` here and against each grid's workspace per frame; prefer
+/// [`backend_for_workspace`] where the workspace is known, so a mismatch fails at start-up.
 pub fn backend_from_config(
     cfg: &BackendConfig,
     gripper: GripperModel,
 ) -> Result<Box<dyn InferenceBackend>, InferenceError> {
     match cfg {
         BackendConfig::Analytic(c) => Ok(Box::new(AnalyticBackend::new(c.clone(), gripper)?)),
+        BackendConfig::Learned(c) => Ok(Box::new(LearnedBackend::for_card_workspace(
+            c.clone(),
+            gripper,
+        )?)),
+    }
+}
+
+/// Builds the backend described by `cfg` for the pipeline's `workspace` and `gripper`; a learned
+/// model whose card records another grid or gripper is refused here.
+pub fn backend_for_workspace(
+    cfg: &BackendConfig,
+    workspace: &Workspace,
+    gripper: GripperModel,
+) -> Result<Box<dyn InferenceBackend>, InferenceError> {
+    match cfg {
+        BackendConfig::Analytic(c) => Ok(Box::new(AnalyticBackend::new(c.clone(), gripper)?)),
+        BackendConfig::Learned(c) => Ok(Box::new(LearnedBackend::new(
+            c.clone(),
+            workspace,
+            gripper,
+        )?)),
     }
 }
 
@@ -297,7 +334,9 @@ mod tests {
     fn backend_config_parses_from_toml_with_defaults() {
         let cfg: BackendConfig =
             toml::from_str("kind = \"analytic\"\nmin_quality = 0.7\n").unwrap();
-        let BackendConfig::Analytic(a) = &cfg;
+        let BackendConfig::Analytic(a) = &cfg else {
+            panic!("analytic expected")
+        };
         assert_eq!(a.min_quality, 0.7);
         assert_eq!(
             a.max_configurations,
@@ -309,7 +348,9 @@ mod tests {
             "kind = \"analytic\"\n[contact_region]\nmin_m = [0.0, 0.1, 0.02]\nmax_m = [0.5, 0.4, 0.3]\n",
         )
         .unwrap();
-        let BackendConfig::Analytic(a) = &with_region;
+        let BackendConfig::Analytic(a) = &with_region else {
+            panic!("analytic expected")
+        };
         assert_eq!(a.contact_region.unwrap().max_m, [0.5, 0.4, 0.3]);
         assert!(
             toml::from_str::<BackendConfig>("kind = \"analytic\"\nmin_qualty = 0.7\n").is_err(),
