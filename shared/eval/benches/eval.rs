@@ -1,0 +1,93 @@
+//! `cargo bench -p psgrasp-eval`: milliseconds per grasp attempt (physics only) on a lone box and
+//! in settled clutter, and seconds per clearing round with the analytic detector.
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use psgrasp_eval::{execute_grasp, ExecutionConfig, GraspCommand};
+use psgrasp_geometry::{BinModel, GripperModel};
+use psgrasp_sim::{
+    MeshLibrary, ObjectKind, ObjectSpec, Part, Primitive, Scene, SceneDescription, SceneObject,
+};
+use std::time::Instant;
+
+fn top_down_at(p: Vector3<f32>, opening_m: f32) -> GraspCommand {
+    let (x, z) = (Vector3::x(), -Vector3::z());
+    let r = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, z.cross(&x), z]));
+    GraspCommand {
+        workspace_from_gripper: Isometry3::from_parts(
+            Translation3::from(p),
+            UnitQuaternion::from_rotation_matrix(&r),
+        ),
+        opening_m,
+    }
+}
+
+fn time_attempts(label: &str, scene: &Scene, cmds: &[GraspCommand], reps: usize) {
+    let meshes = MeshLibrary::default();
+    let gripper = GripperModel::default();
+    let cfg = ExecutionConfig::default();
+    let mut times = Vec::new();
+    let mut steps = 0;
+    for _ in 0..reps {
+        for c in cmds {
+            let t = Instant::now();
+            let ex = execute_grasp(scene, &meshes, &gripper, c, &cfg).expect("execution runs");
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+            steps += ex.report.steps;
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    let mean = times.iter().sum::<f64>() / times.len() as f64;
+    println!(
+        "| {label} | {} | {:.1} | {:.1} | {:.1} | {:.0} |",
+        times.len(),
+        times[0],
+        times[times.len() / 2],
+        mean,
+        steps as f64 / times.len() as f64
+    );
+}
+
+fn main() {
+    println!("## Grasp execution (physics only, one thread)\n");
+    println!("| scene | attempts | min ms | median ms | mean ms | steps/attempt |");
+    println!("|---|---|---|---|---|---|");
+    let bin = BinModel::default();
+    let c = bin.floor_center;
+    let lone = Scene::new(SceneDescription {
+        bin,
+        objects: vec![SceneObject {
+            spec: ObjectSpec {
+                name: "box".into(),
+                kind: ObjectKind::Box,
+                parts: vec![Part {
+                    object_from_part: Isometry3::identity(),
+                    primitive: Primitive::Cuboid {
+                        half_extents: [0.02, 0.03, 0.025],
+                    },
+                }],
+            },
+            workspace_from_object: Isometry3::translation(c.x, c.y, c.z + 0.025),
+        }],
+    })
+    .expect("scene");
+    time_attempts(
+        "1 box, successful grasp",
+        &lone,
+        &[top_down_at(Vector3::new(c.x, c.y, c.z + 0.025), 0.06)],
+        10,
+    );
+    for n in [15usize, 35] {
+        let scene = psgrasp_sim::procedural_scene(7, n, &bin).expect("scene");
+        // Straight-down grasps at each object's centre: a mix of successes and failures.
+        let cmds: Vec<GraspCommand> = scene
+            .objects()
+            .iter()
+            .map(|o| top_down_at(o.workspace_from_object.translation.vector, 0.07))
+            .collect();
+        time_attempts(
+            &format!("{} settled objects, top-down at each", scene.object_count()),
+            &scene,
+            &cmds,
+            1,
+        );
+    }
+}

@@ -1,0 +1,160 @@
+//! Grasp execution on single analytic objects with known answers.
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use psgrasp_eval::{execute_grasp, ExecutionConfig, GraspCommand, GraspOutcome};
+use psgrasp_geometry::{BinModel, GripperModel};
+use psgrasp_sim::{
+    MeshLibrary, ObjectKind, ObjectSpec, Part, Primitive, Scene, SceneDescription, SceneObject,
+};
+
+fn cuboid(half: [f32; 3]) -> ObjectSpec {
+    ObjectSpec {
+        name: "box".into(),
+        kind: ObjectKind::Box,
+        parts: vec![Part {
+            object_from_part: Isometry3::identity(),
+            primitive: Primitive::Cuboid { half_extents: half },
+        }],
+    }
+}
+
+/// Boxes resting on the bin floor, centred at the given xy offsets from the floor centre.
+fn boxes_on_floor(items: &[([f32; 3], [f32; 2])]) -> Scene {
+    let bin = BinModel::default();
+    let c = bin.floor_center;
+    let objects = items
+        .iter()
+        .map(|(half, [dx, dy])| SceneObject {
+            spec: cuboid(*half),
+            workspace_from_object: Isometry3::translation(c.x + dx, c.y + dy, c.z + half[2]),
+        })
+        .collect();
+    Scene::new(SceneDescription { bin, objects }).unwrap()
+}
+
+/// Gripper pose with baseline `x`, approach `z`, TCP at `tcp`.
+fn pose(tcp: Point3<f32>, x: Vector3<f32>, z: Vector3<f32>) -> Isometry3<f32> {
+    let y = z.cross(&x);
+    let r = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
+    Isometry3::from_parts(
+        Translation3::from(tcp.coords),
+        UnitQuaternion::from_rotation_matrix(&r),
+    )
+}
+
+/// Straight-down grasp across x at the object's centre height.
+fn top_down(scene: &Scene, object: usize, opening_m: f32) -> GraspCommand {
+    let p = scene.objects()[object]
+        .workspace_from_object
+        .translation
+        .vector;
+    GraspCommand {
+        workspace_from_gripper: pose(Point3::from(p), Vector3::x(), -Vector3::z()),
+        opening_m,
+    }
+}
+
+fn run(scene: &Scene, cmd: &GraspCommand) -> psgrasp_eval::Execution {
+    execute_grasp(
+        scene,
+        &MeshLibrary::default(),
+        &GripperModel::default(),
+        cmd,
+        &ExecutionConfig::default(),
+    )
+    .unwrap()
+}
+
+#[test]
+fn good_grasp_lifts_a_box_and_removes_it() {
+    let scene = boxes_on_floor(&[([0.02, 0.03, 0.025], [0.0, 0.0])]);
+    let ex = run(&scene, &top_down(&scene, 0, 0.06));
+    assert_eq!(ex.report.outcome, GraspOutcome::Success, "{:?}", ex.report);
+    assert_eq!(ex.report.removed_object, Some(0));
+    assert!(ex.scene_after.objects.is_empty());
+    // The fingers rest on the 40 mm faces.
+    assert!(
+        (ex.report.final_opening_m - 0.04).abs() < 0.004,
+        "opening {}",
+        ex.report.final_opening_m
+    );
+}
+
+#[test]
+fn object_wider_than_the_opening_fails_on_approach() {
+    // 100 mm across the baseline: the fingers land on top of the box instead of wedging it.
+    let scene = boxes_on_floor(&[([0.05, 0.02, 0.025], [0.0, 0.0])]);
+    let ex = run(&scene, &top_down(&scene, 0, 0.08));
+    assert_eq!(ex.report.outcome, GraspOutcome::ApproachContact);
+    assert_eq!(ex.scene_after.objects.len(), 1);
+    // The same box grasped across its 40 mm side works.
+    let mut across = top_down(&scene, 0, 0.06);
+    across.workspace_from_gripper = pose(
+        Point3::from(across.workspace_from_gripper.translation.vector),
+        Vector3::y(),
+        -Vector3::z(),
+    );
+    assert_eq!(run(&scene, &across).report.outcome, GraspOutcome::Success);
+}
+
+#[test]
+fn colliding_pregrasp_aborts_without_touching_the_scene() {
+    // A box 9 cm from the −x wall, approached horizontally from the wall side: the hand at the
+    // pre-grasp pose (8 cm back) cuts through the wall.
+    let bin = BinModel::default();
+    let half = [0.02, 0.02, 0.02];
+    let dx = -0.5 * bin.inner_size_m[0] + 0.09;
+    let scene = boxes_on_floor(&[(half, [dx, 0.0])]);
+    let p = scene.objects()[0].workspace_from_object.translation.vector;
+    let cmd = GraspCommand {
+        workspace_from_gripper: pose(Point3::from(p), Vector3::y(), Vector3::x()),
+        opening_m: 0.06,
+    };
+    let ex = run(&scene, &cmd);
+    assert_eq!(ex.report.outcome, GraspOutcome::PregraspCollision);
+    assert_eq!(ex.report.steps, 0);
+    assert_eq!(&ex.scene_after, scene.description());
+}
+
+#[test]
+fn closing_on_nothing_and_double_grasps_fail() {
+    let scene = boxes_on_floor(&[([0.02, 0.02, 0.02], [0.0, 0.0])]);
+    let mut miss = top_down(&scene, 0, 0.06);
+    miss.workspace_from_gripper.translation.vector.y += 0.1;
+    let ex = run(&scene, &miss);
+    assert_eq!(ex.report.outcome, GraspOutcome::NothingHeld);
+    assert!(ex.report.final_opening_m < 0.002);
+    assert_eq!(ex.scene_after.objects.len(), 1);
+
+    // Two 25 mm boxes side by side inside one 70 mm opening.
+    let two = boxes_on_floor(&[
+        ([0.0125, 0.02, 0.02], [-0.0135, 0.0]),
+        ([0.0125, 0.02, 0.02], [0.0135, 0.0]),
+    ]);
+    let c = BinModel::default().floor_center;
+    let cmd = GraspCommand {
+        workspace_from_gripper: pose(
+            Point3::new(c.x, c.y, c.z + 0.02),
+            Vector3::x(),
+            -Vector3::z(),
+        ),
+        opening_m: 0.075,
+    };
+    let ex = run(&two, &cmd);
+    assert_eq!(ex.report.outcome, GraspOutcome::DoubleGrasp);
+    assert_eq!(ex.report.lifted_objects, vec![0, 1]);
+    // Dropped back into the bin, not removed.
+    assert_eq!(ex.scene_after.objects.len(), 2);
+}
+
+#[test]
+fn execution_is_deterministic() {
+    let scene = boxes_on_floor(&[
+        ([0.02, 0.03, 0.025], [0.0, 0.0]),
+        ([0.03, 0.02, 0.02], [0.1, 0.02]),
+    ]);
+    let cmd = top_down(&scene, 0, 0.06);
+    let a = run(&scene, &cmd);
+    let b = run(&scene, &cmd);
+    assert_eq!(a, b);
+    assert_eq!(a.report.outcome, GraspOutcome::Success);
+}
