@@ -20,6 +20,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--iterations", type=int, default=None, help="override train.iterations")
     t.add_argument("--threads", type=int, default=None, help="override train.threads")
     t.add_argument("--device", default=None, help="override train.device (cpu, cuda, auto)")
+    t.add_argument("--stop-at", type=int, default=None, help="stop cleanly at this step (resumable)")
     t.add_argument("--no-export", action="store_true", help="do not export RUN_DIR/model at the end")
 
     e = sub.add_parser("export", help="export a run to unet.onnx + mlp.onnx + card.json")
@@ -64,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.max_minutes is not None:
                 cfg.train.max_minutes = args.max_minutes
             cfg.validate()
-            train(cfg, args.data, args.out, resume=args.resume, export=not args.no_export)
+            train(cfg, args.data, args.out, resume=args.resume, export=not args.no_export, stop_at=args.stop_at)
         elif args.command == "export":
             from .export import export_run
 

@@ -208,7 +208,7 @@ def _open_log(run_dir: Path, resume_step: int):
     rows = []
     if resume_step > 0 and path.is_file():
         with path.open() as f:
-            rows = [r for r in csv.DictReader(f) if int(r["step"]) < resume_step]
+            rows = [r for r in csv.DictReader(f) if int(r["step"]) <= resume_step]
     f = path.open("w", newline="")
     w = csv.DictWriter(f, fieldnames=LOG_FIELDS)
     w.writeheader()
@@ -217,8 +217,12 @@ def _open_log(run_dir: Path, resume_step: int):
     return f, w
 
 
-def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: bool = True, log=print) -> dict:
-    """Train (or resume) a run; returns the final validation metrics."""
+def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: bool = True, log=print,
+          stop_at: int | None = None) -> dict:
+    """Train (or resume) a run; returns the final validation metrics.
+
+    stop_at: stop (save, validate, export) once this step is reached, like the wall-clock limit
+    (the learning-rate schedule still spans train.iterations; resume continues it)."""
     run_dir = Path(run_dir)
     device = setup_torch(cfg)
     ds = SceneDataset(data, cfg)
@@ -259,6 +263,10 @@ def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: 
         while step < t_cfg.iterations:
             if t_cfg.max_minutes > 0 and time.monotonic() - t0 > 60.0 * t_cfg.max_minutes:
                 log(f"wall-clock limit of {t_cfg.max_minutes} min reached at step {step}: stopping")
+                stopped = True
+                break
+            if stop_at is not None and step >= stop_at:
+                log(f"stopping at step {step} (--stop-at)")
                 stopped = True
                 break
             ts = time.monotonic()
@@ -303,7 +311,7 @@ def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: 
         export_model(net.cpu(), cfg, ds.info, run_dir / "model", step, validation, ref, log=log)
         log(f"exported {run_dir / 'model'}")
     if stopped:
-        log("stopped early by the wall-clock limit; resume with --resume")
+        log("stopped early; continue with --resume")
     return validation
 
 

@@ -1,0 +1,80 @@
+import json
+
+import numpy as np
+import pytest
+import torch
+from safetensors.numpy import save_file
+
+from psgrasp_training.data import DatasetError, SceneDataset, flip_scene, read_scene
+from psgrasp_training.decode import approach_vectors
+from synthetic import APPROACH_DEPTH, make_scene
+
+
+def test_mirror_reverses_approach_order():
+    g = torch.Generator().manual_seed(4)
+    b = torch.randn(100, 3, generator=g, dtype=torch.float64)
+    b = b / b.norm(dim=1, keepdim=True)
+    a = approach_vectors(b)
+    for axis in (0, 1):
+        m = torch.ones(3, dtype=torch.float64)
+        m[axis] = -1
+        mirrored = approach_vectors(b * m)
+        assert torch.allclose(a * m, mirrored.flip(1), atol=1e-9)
+
+
+def scene_from_tensors(tmp_path, tensors, meta):
+    path = tmp_path / "s.safetensors"
+    save_file(tensors, str(path), metadata={"psgrasp_scene": json.dumps(meta)})
+    return read_scene(path)
+
+
+@pytest.mark.parametrize("fx,fy", [(True, False), (False, True), (True, True)])
+def test_flip_keeps_normals_labels_and_grasps_consistent(tmp_path, fx, fy):
+    tensors, meta = make_scene(0, np.random.default_rng(1), free_set=range(0, 6))  # asymmetric flags
+    scene = scene_from_tensors(tmp_path, tensors, meta)
+    f = flip_scene(scene, fx, fy)
+    s = scene.voxel_size_m
+    dims = torch.tensor(scene.dims)
+
+    def label_at(sc, p):
+        v = torch.floor(p / s).long().clamp(min=0)
+        v = torch.minimum(v, dims - 1)
+        return sc.labels[v[:, 0], v[:, 1], v[:, 2]]
+
+    for sc in (scene, f):
+        # Contacts lie in contact voxels; approach points of collision-free grasps in gripper/contact space.
+        assert (label_at(sc, sc.contact) == 1).all()
+        a = approach_vectors(sc.baseline)
+        t = (sc.contact + 0.5 * sc.width[:, None] * sc.baseline)[:, None] - a * APPROACH_DEPTH
+        free = sc.collision_free.bool()
+        inside = ((t >= 0) & (t < dims * s)).all(-1)
+        lab = label_at(sc, t[free & inside])
+        assert (lab >= 1).all()
+        # Normals point away from the box: at the contact voxel the normal opposes the baseline.
+        v = torch.floor(sc.contact / s).long()
+        n = sc.normals[:, v[:, 0], v[:, 1], v[:, 2]].t()
+        assert ((n * sc.baseline).sum(1) < 0).float().mean() >= 0.85  # floor voxels excepted
+    # One mirror reverses the flag order, two restore it.
+    assert torch.equal(f.collision_free, scene.collision_free.flip(1) if fx != fy else scene.collision_free)
+
+
+def test_read_scene_errors(tmp_path):
+    tensors, meta = make_scene(0, np.random.default_rng(1))
+    del tensors["grasp_width"]
+    path = tmp_path / "bad.safetensors"
+    save_file(tensors, str(path), metadata={"psgrasp_scene": json.dumps(meta)})
+    with pytest.raises(DatasetError, match="grasp_width"):
+        read_scene(path)
+    (tmp_path / "junk.safetensors").write_bytes(b"not a safetensors file")
+    with pytest.raises(DatasetError, match="cannot read"):
+        read_scene(tmp_path / "junk.safetensors")
+    with pytest.raises(DatasetError, match="no manifest"):
+        SceneDataset(tmp_path, None)
+
+
+def test_split_is_deterministic_by_index(box_dataset, tiny_cfg):
+    ds = SceneDataset(box_dataset, tiny_cfg())
+    assert [e["index"] for e in ds.train_entries] == [0, 1]
+    assert [e["index"] for e in ds.val_entries] == [2]
+    assert ds.info.approach_depth_m == pytest.approx(0.039)
+    assert ds.info.dims == [16, 16, 16]

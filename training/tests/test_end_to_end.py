@@ -1,0 +1,108 @@
+import json
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+from safetensors.numpy import load_file
+
+from psgrasp_training.__main__ import main
+from psgrasp_training.checkpoint import load_checkpoint
+from psgrasp_training.decode import class_probabilities, decode
+from psgrasp_training.export import sha256_bytes
+from psgrasp_training.model import MLP_OUTPUTS
+from psgrasp_training.train import train
+
+
+def quiet(*_):
+    pass
+
+
+@pytest.fixture(scope="module")
+def trained_run(box_dataset, tmp_path_factory):
+    from conftest import tiny_config
+
+    run = tmp_path_factory.mktemp("run")
+    val = train(tiny_config(), box_dataset, run, export=True, log=quiet)
+    return run, val
+
+
+def test_train_writes_log_checkpoints_and_model(trained_run):
+    run, val = trained_run
+    rows = (run / "log.csv").read_text().strip().splitlines()
+    assert rows[0].startswith("step,loss,label") and len(rows) == 11
+    last = dict(zip(rows[0].split(","), rows[-1].split(",")))
+    assert float(last["hit_rate"]) > 0.5 and float(last["points"]) > 0 and float(last["baseline"]) != 0
+    assert (run / "checkpoints" / "step_0000005.pt").is_file() and load_checkpoint(run)["step"] == 10
+    assert val["scenes"] == 1 and val["points"] > 0 and set(val["iou"]) == {"empty", "contact", "gripper"}
+    card = json.loads((run / "model" / "card.json").read_text())
+    assert card["training"]["iterations"] == 10 and card["grid"]["dims"] == [16, 16, 16]
+    assert card["validation"]["baseline_angle_error_deg"] == pytest.approx(val["baseline_angle_error_deg"])
+    for key in ("unet", "mlp"):
+        assert card["files"][key]["sha256"] == sha256_bytes((run / "model" / card["files"][key]["path"]).read_bytes())
+
+
+def test_exported_graphs_match_pytorch_and_reference(trained_run, box_dataset, tmp_path):
+    run, _ = trained_run
+    out = tmp_path / "model"
+    scene = box_dataset / "scene_000002.safetensors"
+    assert main(["export", "--run", str(run), "--out", str(out), "--reference", str(scene),
+                 "--contact-probability", "0.0"]) == 0
+    card = json.loads((out / "card.json").read_text())
+    ref = load_file(str(out / "reference.safetensors"))
+    assert ref["points"].shape == (256, 3) and ref["features"].shape == (256, card["mlp"]["feature_dim"])
+
+    unet = ort.InferenceSession(str(out / "unet.onnx"), providers=["CPUExecutionProvider"])
+    names = [o.name for o in unet.get_outputs()]
+    assert names == ["label_logits", "enc0", "enc1"]
+    got = dict(zip(names, unet.run(None, {"normal_grid": ref["normal_grid"]})))
+    for k in names:
+        np.testing.assert_allclose(got[k], ref[k], atol=1e-5)
+    mlp = ort.InferenceSession(str(out / "mlp.onnx"), providers=["CPUExecutionProvider"])
+    assert [o.name for o in mlp.get_outputs()] == list(MLP_OUTPUTS)
+    for n in (1, 7, 256):
+        res = dict(zip(MLP_OUTPUTS, mlp.run(None, {"features": ref["features"][:n]})))
+        for k in MLP_OUTPUTS:
+            np.testing.assert_allclose(res[k], ref[k][:n], atol=1e-5)
+    assert np.allclose(np.linalg.norm(ref["baseline"], axis=1), 1, atol=1e-5)
+    assert (ref["kappa"] >= 25 - 1e-4).all() and (ref["kappa"] <= 100 + 1e-3).all()
+    assert (ref["width"] > 0).all() and (ref["width"] < 0.08).all()
+
+    # PyTorch model vs ONNX outputs, and decoding from the ONNX logits reproduces the reference.
+    state = load_checkpoint(run)
+    from psgrasp_training.model import GraspNet
+
+    net = GraspNet(state["config"]).eval()
+    net.load_state_dict(state["model"])
+    with torch.no_grad():
+        logits, _ = net.unet(torch.from_numpy(ref["normal_grid"]))
+        np.testing.assert_allclose(logits.numpy(), got["label_logits"], atol=1e-5)
+        mlp_out = {k: torch.from_numpy(v) for k, v in res.items()}
+        dec = decode(class_probabilities(torch.from_numpy(got["label_logits"])), mlp_out,
+                     torch.from_numpy(ref["points"]), [16 * 0.009] * 3, card["gripper"]["approach_depth_m"])
+    np.testing.assert_allclose(dec.quality.numpy(), ref["quality"], atol=1e-5)
+    np.testing.assert_allclose(dec.collision_scores.numpy(), ref["collision_scores"], atol=1e-5)
+
+
+def test_same_seed_same_weights_and_exact_resume(box_dataset, tmp_path):
+    from conftest import tiny_config
+
+    cfg = lambda: tiny_config(iterations=6, checkpoint_every=0)  # noqa: E731
+    train(cfg(), box_dataset, tmp_path / "a", export=False, log=quiet)
+    train(cfg(), box_dataset, tmp_path / "b", export=False, log=quiet)
+    train(cfg(), box_dataset, tmp_path / "c", export=False, log=quiet, stop_at=4)
+    assert load_checkpoint(tmp_path / "c")["step"] == 4
+    train(cfg(), box_dataset, tmp_path / "c", resume=True, export=False, log=quiet)
+    a, b, c = (load_checkpoint(tmp_path / r)["model"] for r in "abc")
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+        assert torch.equal(a[k], c[k]), k
+    other = load_checkpoint(tmp_path / "a")
+    assert other["step"] == 6
+    # The log of the resumed run has one row per step.
+    assert len((tmp_path / "c" / "log.csv").read_text().strip().splitlines()) == 7
+
+
+def test_cli_reports_errors(tmp_path, capsys):
+    assert main(["export", "--run", str(tmp_path / "missing"), "--out", str(tmp_path / "m")]) == 2
+    assert "no checkpoint" in capsys.readouterr().err
