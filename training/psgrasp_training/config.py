@@ -57,9 +57,10 @@ class GridConfig:
 class DataConfig:
     """Dataset split, caching and augmentation."""
 
-    #: Share of the scenes held out for validation (the last scenes by index), used when val_scenes < 0.
-    val_fraction: float = 0.05
-    #: Number of validation scenes (overrides val_fraction when ≥ 0).
+    #: Scenes with index % val_every == val_every − 1 are held out for validation (stable when the
+    #: dataset grows); used when val_scenes < 0.
+    val_every: int = 20
+    #: If ≥ 0: hold out exactly the last val_scenes scenes by index instead.
     val_scenes: int = -1
     #: Use at most this many scenes of the dataset (0 = all), taken by index before the split.
     max_scenes: int = 0
@@ -227,6 +228,8 @@ class Config:
         for name in ("voxel_size_m", "max_opening_m", "approach_depth_m"):
             if not (getattr(g, name) > 0):
                 raise ConfigError(f"grid.{name} must be > 0")
+        if self.data.val_every < 2:
+            raise ConfigError("data.val_every must be ≥ 2")
         c = self.contacts
         if c.rule not in ("jittered-contact", "voxel-uniform"):
             raise ConfigError(f"contacts.rule: {c.rule!r} is not 'jittered-contact' or 'voxel-uniform'")

@@ -2,7 +2,8 @@
 
 Only the tensors the network needs are read: ``normals``, ``label_grid`` and the grasp tensors
 ``grasp_contact``, ``grasp_baseline``, ``grasp_width``, ``grasp_quality``, ``grasp_collision_free``.
-The train/validation split is by scene index: the last scenes are held out (deterministic).
+The train/validation split is by scene index (deterministic): every ``val_every``-th scene, or the
+last ``val_scenes`` scenes, are held out.
 """
 
 from __future__ import annotations
@@ -156,10 +157,16 @@ class SceneDataset:
             entries = entries[: cfg.data.max_scenes]
         if not entries:
             raise DatasetError(f"{self.root}: no scene files listed in the manifest exist")
-        n_val = cfg.data.val_scenes if cfg.data.val_scenes >= 0 else round(cfg.data.val_fraction * len(entries))
-        n_val = min(n_val, len(entries) - 1)
-        self.train_entries = entries[: len(entries) - n_val]
-        self.val_entries = entries[len(entries) - n_val:]
+        if cfg.data.val_scenes >= 0:
+            n_val = min(cfg.data.val_scenes, len(entries) - 1)
+            self.train_entries = entries[: len(entries) - n_val]
+            self.val_entries = entries[len(entries) - n_val:]
+        else:
+            k = cfg.data.val_every
+            self.train_entries = [e for e in entries if e["index"] % k != k - 1]
+            self.val_entries = [e for e in entries if e["index"] % k == k - 1]
+            if not self.train_entries:
+                self.train_entries, self.val_entries = self.val_entries, []
         conf = self.manifest.get("config", {})
         ws = conf.get("workspace", {})
         gr = conf.get("gripper", {})

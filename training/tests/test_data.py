@@ -78,3 +78,11 @@ def test_split_is_deterministic_by_index(box_dataset, tiny_cfg):
     assert [e["index"] for e in ds.val_entries] == [2]
     assert ds.info.approach_depth_m == pytest.approx(0.039)
     assert ds.info.dims == [16, 16, 16]
+
+
+def test_modulo_split(box_dataset, tiny_cfg):
+    from psgrasp_training.config import config_from_dict
+
+    cfg = config_from_dict({"data": {"val_every": 3}})
+    ds = SceneDataset(box_dataset, cfg)
+    assert [e["index"] for e in ds.train_entries] == [0, 1] and [e["index"] for e in ds.val_entries] == [2]
