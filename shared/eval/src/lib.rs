@@ -2,16 +2,25 @@
 //!
 //! - [`execute`]: one grasp executed in rapier3d by a free-floating Franka hand (kinematic palm,
 //!   force-limited fingers on prismatic impulse joints), judged as success or a named failure.
+//! - [`protocol`]: the paper's clearing protocol on one test scene: render → fusion → detector →
+//!   selection → execution, round after round.
+//! - [`detectors`]: detectors as data (named `BackendConfig`s, a TOML list).
 //!
 //! Determinism: every random process takes a seed; the same seed gives the same outcome on the
 //! same build and platform (rapier is not built with cross-platform determinism).
 #![warn(missing_docs)]
 
+pub mod detectors;
 pub mod execute;
+pub mod protocol;
 
+pub use detectors::{default_detectors, DetectorList, DetectorSpec};
 pub use execute::{
     execute_grasp, hand_collides, pregrasp_pose, Execution, ExecutionConfig, ExecutionReport,
     GraspCommand, GraspOutcome,
+};
+pub use protocol::{
+    run_scene, scene_seed, AttemptRecord, ProtocolConfig, SceneEnd, SceneRun, SceneSummary,
 };
 
 use std::path::PathBuf;
@@ -39,6 +48,31 @@ pub enum EvalError {
     /// The detector (inference backend) failed or could not be built.
     #[error("detector failed: {0}")]
     Inference(#[from] psgrasp_inference::InferenceError),
+    /// A detector could not be built.
+    #[error("detector `{name}`: {source}")]
+    Detector {
+        /// The detector's name.
+        name: String,
+        /// Why.
+        #[source]
+        source: psgrasp_inference::InferenceError,
+    },
+    /// A detector entry is invalid (bad or duplicate name, unparsable list).
+    #[error("detector `{name}`: {reason}")]
+    InvalidDetector {
+        /// The detector's name (`*` for the whole list).
+        name: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A detector was asked for that the list does not hold.
+    #[error("unknown detector `{name}` (known: {})", known.join(", "))]
+    UnknownDetector {
+        /// The name asked for.
+        name: String,
+        /// The names the list holds.
+        known: Vec<String>,
+    },
     /// Grasp selection could not run.
     #[error("selection failed: {0}")]
     Selection(#[from] psgrasp_selection::SelectionError),

@@ -1,0 +1,283 @@
+//! Detectors as data: a named [`BackendConfig`] each, compared through the same
+//! [`InferenceBackend`] trait and the same render → fusion → backend → selection code.
+//!
+//! A detector list is a TOML file:
+//!
+//! ```toml
+//! [[detector]]
+//! name = "analytic"
+//! label = "Analytic antipodal (GPD-style)"
+//! backend = { kind = "analytic" }
+//!
+//! [[detector]]
+//! name = "w-kappa-8app"
+//! label = "Ours (w κ + 8app)"
+//! backend = { kind = "learned", model_dir = "models/default" }
+//! ```
+//!
+//! Without a file, [`default_detectors`] gives the analytic baseline plus one learned detector per
+//! model directory (a folder with a `card.json`) under `models/`.
+use crate::protocol::ProtocolConfig;
+use crate::EvalError;
+use psgrasp_inference::{
+    backend_for_workspace, BackendConfig, ContactRegion, InferenceBackend, LearnedConfig,
+};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// One detector: a name (used on the command line and in records) and its backend settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorSpec {
+    /// Short unique name: letters, digits, `-`, `_`, `.` (it names files and records).
+    pub name: String,
+    /// Display name for tables and plots (defaults to `name`).
+    #[serde(default)]
+    pub label: Option<String>,
+    /// The backend and its settings.
+    pub backend: BackendConfig,
+}
+
+/// The detector list file: `[[detector]]` tables.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorList {
+    /// The detectors, in table order.
+    #[serde(default, rename = "detector")]
+    pub detectors: Vec<DetectorSpec>,
+}
+
+impl DetectorSpec {
+    /// The analytic antipodal baseline with default settings.
+    pub fn analytic() -> Self {
+        Self {
+            name: "analytic".into(),
+            label: Some("Analytic antipodal (GPD-style)".into()),
+            backend: BackendConfig::Analytic(Default::default()),
+        }
+    }
+
+    /// A learned detector reading the model in `model_dir`.
+    pub fn learned(name: &str, model_dir: PathBuf) -> Self {
+        Self {
+            name: name.into(),
+            label: None,
+            backend: BackendConfig::Learned(LearnedConfig {
+                model_dir,
+                ..Default::default()
+            }),
+        }
+    }
+
+    /// The display name.
+    pub fn display_name(&self) -> &str {
+        self.label.as_deref().unwrap_or(&self.name)
+    }
+
+    /// Checks the name.
+    pub fn validate(&self) -> Result<(), EvalError> {
+        let ok = !self.name.is_empty()
+            && self.name.len() <= 64
+            && self
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'));
+        if ok {
+            Ok(())
+        } else {
+            Err(EvalError::InvalidDetector {
+                name: self.name.clone(),
+                reason: "names use 1-64 letters, digits, '-', '_' or '.'".into(),
+            })
+        }
+    }
+
+    /// The backend configuration as the evaluation runs it: an analytic backend without a
+    /// contact region gets the bin interior (as the inference stage does), so the thin bin walls
+    /// are never grasped.
+    pub fn effective_backend(&self, protocol: &ProtocolConfig) -> BackendConfig {
+        let mut cfg = self.backend.clone();
+        if let BackendConfig::Analytic(a) = &mut cfg {
+            if a.contact_region.is_none() {
+                a.contact_region = Some(ContactRegion::inside_bin(
+                    &protocol.scenes.bin,
+                    protocol.contact_region_inset_m,
+                ));
+            }
+        }
+        cfg
+    }
+
+    /// Builds the backend for the protocol's workspace and gripper.
+    pub fn build(&self, protocol: &ProtocolConfig) -> Result<Box<dyn InferenceBackend>, EvalError> {
+        self.validate()?;
+        backend_for_workspace(
+            &self.effective_backend(protocol),
+            &protocol.scenes.workspace,
+            protocol.scenes.gripper,
+        )
+        .map_err(|source| EvalError::Detector {
+            name: self.name.clone(),
+            source,
+        })
+    }
+}
+
+impl DetectorList {
+    /// Parses a detector list and checks that names are valid and unique.
+    pub fn from_toml(text: &str) -> Result<Self, EvalError> {
+        let list: DetectorList = toml::from_str(text).map_err(|e| EvalError::InvalidDetector {
+            name: "*".into(),
+            reason: e.to_string(),
+        })?;
+        list.validate()?;
+        Ok(list)
+    }
+
+    /// Reads a detector list file.
+    pub fn read(path: &Path) -> Result<Self, EvalError> {
+        let text = std::fs::read_to_string(path).map_err(|source| EvalError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_toml(&text)
+    }
+
+    /// Checks names (valid, unique).
+    pub fn validate(&self) -> Result<(), EvalError> {
+        let mut seen = std::collections::BTreeSet::new();
+        for d in &self.detectors {
+            d.validate()?;
+            if !seen.insert(d.name.as_str()) {
+                return Err(EvalError::InvalidDetector {
+                    name: d.name.clone(),
+                    reason: "appears twice".into(),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The detectors named in `names` (all of them when `names` is empty), in the given order.
+    pub fn pick(&self, names: &[String]) -> Result<Vec<DetectorSpec>, EvalError> {
+        if names.is_empty() {
+            return Ok(self.detectors.clone());
+        }
+        names
+            .iter()
+            .map(|n| {
+                self.detectors
+                    .iter()
+                    .find(|d| &d.name == n)
+                    .cloned()
+                    .ok_or_else(|| EvalError::UnknownDetector {
+                        name: n.clone(),
+                        known: self.detectors.iter().map(|d| d.name.clone()).collect(),
+                    })
+            })
+            .collect()
+    }
+}
+
+/// The built-in detector list: the analytic baseline, then one learned detector per model
+/// directory under `models_dir` (a sub-folder holding `card.json`, named after the folder, in
+/// name order). A missing `models_dir` gives the analytic baseline only.
+pub fn default_detectors(models_dir: &Path) -> DetectorList {
+    let mut detectors = vec![DetectorSpec::analytic()];
+    let mut dirs: Vec<(String, PathBuf)> = std::fs::read_dir(models_dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| {
+            e.path()
+                .join(psgrasp_inference::learned::card::CARD_FILE)
+                .is_file()
+        })
+        .filter_map(|e| {
+            let name = e.file_name().to_str()?.to_owned();
+            Some((name, e.path()))
+        })
+        .collect();
+    dirs.sort();
+    for (name, path) in dirs {
+        let spec = DetectorSpec::learned(&name, path);
+        if spec.validate().is_ok() && name != "analytic" {
+            detectors.push(spec);
+        }
+    }
+    DetectorList { detectors }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn detector_list_parses_with_defaults_and_rejects_bad_entries() {
+        let list = DetectorList::from_toml(
+            "[[detector]]\nname = \"analytic\"\nbackend = { kind = \"analytic\", min_quality = 0.6 }\n\
+             [[detector]]\nname = \"w-kappa-1app\"\nlabel = \"Ours (w κ + 1app)\"\n\
+             backend = { kind = \"learned\", model_dir = \"models/1app\" }\n",
+        )
+        .unwrap();
+        assert_eq!(list.detectors.len(), 2);
+        let BackendConfig::Analytic(a) = &list.detectors[0].backend else {
+            panic!("analytic expected")
+        };
+        assert_eq!(a.min_quality, 0.6);
+        assert_eq!(list.detectors[1].display_name(), "Ours (w κ + 1app)");
+        assert_eq!(list.detectors[1].backend.kind(), "learned");
+        let picked = list.pick(&["w-kappa-1app".into()]).unwrap();
+        assert_eq!(picked[0].name, "w-kappa-1app");
+        assert!(matches!(
+            list.pick(&["nope".into()]),
+            Err(EvalError::UnknownDetector { .. })
+        ));
+        // Duplicate names, bad names, unknown keys.
+        let dup = "[[detector]]\nname = \"a\"\nbackend = { kind = \"analytic\" }\n".repeat(2);
+        assert!(DetectorList::from_toml(&dup).is_err());
+        assert!(DetectorList::from_toml(
+            "[[detector]]\nname = \"a b\"\nbackend = { kind = \"analytic\" }\n"
+        )
+        .is_err());
+        assert!(DetectorList::from_toml(
+            "[[detector]]\nname = \"a\"\nbakend = { kind = \"analytic\" }\n"
+        )
+        .is_err());
+    }
+
+    #[test]
+    fn defaults_find_model_directories() {
+        let dir = tempfile::tempdir().unwrap();
+        assert_eq!(
+            default_detectors(&dir.path().join("missing"))
+                .detectors
+                .len(),
+            1
+        );
+        for name in ["w-kappa-8app", "wo-kappa-1app"] {
+            std::fs::create_dir(dir.path().join(name)).unwrap();
+            std::fs::write(dir.path().join(name).join("card.json"), "{}").unwrap();
+        }
+        std::fs::create_dir(dir.path().join("no-card")).unwrap();
+        let list = default_detectors(dir.path());
+        let names: Vec<&str> = list.detectors.iter().map(|d| d.name.as_str()).collect();
+        assert_eq!(names, ["analytic", "w-kappa-8app", "wo-kappa-1app"]);
+        let BackendConfig::Learned(l) = &list.detectors[1].backend else {
+            panic!("learned expected")
+        };
+        assert_eq!(l.model_dir, dir.path().join("w-kappa-8app"));
+    }
+
+    #[test]
+    fn analytic_contacts_are_kept_inside_the_bin() {
+        let proto = ProtocolConfig::default();
+        let BackendConfig::Analytic(a) = DetectorSpec::analytic().effective_backend(&proto) else {
+            panic!("analytic expected")
+        };
+        let region = a.contact_region.unwrap();
+        let bin = proto.scenes.bin;
+        assert!(region.contains(&bin.floor_center.map(|v| v + 0.01)));
+        assert!(!region.contains(&(bin.floor_center - nalgebra::Vector3::new(0.0, 0.0, 0.001))));
+    }
+}

@@ -1,0 +1,315 @@
+//! The paper's clearing protocol on one test scene ([`run_scene`]).
+//!
+//! The scene is the dataset's test scene for the same level, run seed and index
+//! (`psgrasp datagen --difficulty <level> --seed <S>` scene `i`): seed
+//! `derive_seed(S, i)`, test objects only, the level's object count, physics and camera. Each
+//! round:
+//!
+//! 1. render the depth image of the current scene (dex noise on `challenging`; frame 0 uses the
+//!    dataset's noise seed);
+//! 2. **detection** (timed): fuse the normal grid → the detector's [`InferenceBackend::infer`] →
+//!    [`psgrasp_selection::select`] — configurations by antipodal quality, for each the first 8 of 18
+//!    approaches by collision score, the first with `q > 0.5`, `σ > 0.5`, a free grasp pose,
+//!    approach path and pre-grasp pose against the observed scene;
+//! 3. execute the pick in physics ([`crate::execute_grasp`]); the scene afterwards is the next
+//!    round's scene.
+//!
+//! A scene ends when the bin is empty, no grasp is found, after
+//! [`ProtocolConfig::max_consecutive_failures`] failed attempts in a row, or at the attempt cap.
+use crate::execute::{execute_grasp, ExecutionConfig, GraspCommand, GraspOutcome};
+use crate::EvalError;
+use psgrasp_datagen::{derive_seed, Difficulty, GenerationConfig};
+use psgrasp_fusion::fuse_normal_grid;
+use psgrasp_inference::InferenceBackend;
+use psgrasp_selection::{select, SelectionConfig};
+use psgrasp_sim::{
+    add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Scene,
+};
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Everything that shapes an evaluation apart from the detector, level, seed and scene index.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ProtocolConfig {
+    /// Scene generation, camera, grid, gripper, noise and fusion, exactly as for the dataset
+    /// (`labels` is not used here).
+    pub scenes: GenerationConfig,
+    /// Grasp selection (the pipeline's); the best pick is executed.
+    pub selection: SelectionConfig,
+    /// Grasp execution in physics.
+    pub execution: ExecutionConfig,
+    /// A scene ends after this many failed attempts in a row (the paper: 3).
+    pub max_consecutive_failures: u32,
+    /// A scene ends after this many attempts in any case.
+    pub max_attempts_per_scene: u32,
+    /// Contacts of an analytic detector without its own `contact_region` are kept this far
+    /// inside the bin's inner volume (as in the inference stage), metres.
+    pub contact_region_inset_m: f32,
+}
+
+impl Default for ProtocolConfig {
+    fn default() -> Self {
+        Self {
+            scenes: GenerationConfig::default(),
+            selection: SelectionConfig::default(),
+            execution: ExecutionConfig::default(),
+            max_consecutive_failures: 3,
+            max_attempts_per_scene: 100,
+            contact_region_inset_m: 0.005,
+        }
+    }
+}
+
+impl ProtocolConfig {
+    /// Checks the settings this crate owns and the selection and execution settings.
+    pub fn validate(&self) -> Result<(), EvalError> {
+        if self.max_consecutive_failures == 0 {
+            return Err(EvalError::InvalidConfig {
+                field: "max_consecutive_failures",
+                reason: "must be at least 1",
+            });
+        }
+        if self.max_attempts_per_scene == 0 {
+            return Err(EvalError::InvalidConfig {
+                field: "max_attempts_per_scene",
+                reason: "must be at least 1",
+            });
+        }
+        if !(self.contact_region_inset_m.is_finite() && self.contact_region_inset_m >= 0.0) {
+            return Err(EvalError::InvalidConfig {
+                field: "contact_region_inset_m",
+                reason: "must be >= 0",
+            });
+        }
+        self.selection.validate()?;
+        self.execution.validate()
+    }
+}
+
+/// Why a scene ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SceneEnd {
+    /// No object is left in the bin.
+    Cleared,
+    /// The detector and selection found no executable grasp.
+    NoGrasp,
+    /// Too many failed attempts in a row.
+    ConsecutiveFailures,
+    /// The attempt cap was reached.
+    AttemptLimit,
+}
+
+/// One executed grasp attempt (a line of the records file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AttemptRecord {
+    /// Attempt number within the scene, from 0.
+    pub attempt: u32,
+    /// Objects in the bin before the attempt.
+    pub objects_before: usize,
+    /// Grasp configurations the detector returned.
+    pub configurations: usize,
+    /// Antipodal quality of the executed pick.
+    pub quality: f32,
+    /// Collision score of its approach.
+    pub collision_score: f32,
+    /// Index of its approach (0..18).
+    pub approach_index: usize,
+    /// Contact-to-contact width, metres.
+    pub width_m: f32,
+    /// Commanded opening, metres.
+    pub opening_m: f32,
+    /// How it ended.
+    pub outcome: GraspOutcome,
+    /// Objects lifted together (2+ is a double grasp).
+    pub lifted: usize,
+    /// Objects that left the bin during the attempt.
+    pub lost: usize,
+    /// Finger opening at the end of the hold, metres.
+    pub final_opening_m: f32,
+    /// Depth rendering, milliseconds (not part of detection).
+    pub render_ms: f64,
+    /// Fusion of the normal grid, milliseconds.
+    pub fusion_ms: f64,
+    /// The detector's `infer`, milliseconds.
+    pub inference_ms: f64,
+    /// Grasp selection, milliseconds.
+    pub selection_ms: f64,
+    /// Physics of the attempt, milliseconds.
+    pub execution_ms: f64,
+}
+
+/// The totals of one scene (the closing line of a scene in the records file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SceneSummary {
+    /// Objects in the bin at the start.
+    pub objects: usize,
+    /// Executed attempts.
+    pub attempts: u32,
+    /// Successful attempts (= objects removed by grasping).
+    pub successes: u32,
+    /// Objects that left the bin by other means (knocked out).
+    pub lost: usize,
+    /// Objects still in the bin at the end.
+    pub remaining: usize,
+    /// Why the scene ended.
+    pub end: SceneEnd,
+    /// Frames detected (attempts plus a final frame without a grasp, if any).
+    pub frames: u32,
+    /// Total detection time (fusion + inference + selection), milliseconds.
+    pub detection_ms: f64,
+    /// Grasp configurations returned over all frames.
+    pub configurations: usize,
+    /// Wall time of the whole scene, milliseconds.
+    pub scene_ms: f64,
+}
+
+/// The result of [`run_scene`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneRun {
+    /// Every executed attempt, in order.
+    pub attempts: Vec<AttemptRecord>,
+    /// The totals.
+    pub summary: SceneSummary,
+}
+
+/// Seed of test scene `index` of a run (the dataset's `derive_seed(run_seed, index)`).
+pub fn scene_seed(run_seed: u64, index: u64) -> u64 {
+    derive_seed(run_seed, index)
+}
+
+/// Runs the clearing protocol on test scene `index` of `level` for `run_seed` with `detector`.
+/// `library`/`meshes` are the object source (the level picks its test objects from it).
+/// Deterministic for the same inputs (wall times aside).
+pub fn run_scene(
+    level: Difficulty,
+    run_seed: u64,
+    index: u64,
+    library: &ObjectLibrary,
+    meshes: &MeshLibrary,
+    detector: &mut dyn InferenceBackend,
+    cfg: &ProtocolConfig,
+) -> Result<SceneRun, EvalError> {
+    if level == Difficulty::Train {
+        return Err(EvalError::InvalidConfig {
+            field: "level",
+            reason: "evaluation uses the test levels easy, medium and challenging",
+        });
+    }
+    cfg.validate()?;
+    let started = Instant::now();
+    let gen = &cfg.scenes;
+    let seed = scene_seed(run_seed, index);
+    let mut recipe = level.recipe(&gen.settle);
+    recipe.scale_range = gen.scale_range;
+    let pool = library.select(Some(level.split()), level.simple_only());
+    let (first, _) = generate_scene(derive_seed(seed, 1), &pool, &gen.bin, meshes, &recipe)?;
+    let camera = default_camera(first.bin(), gen.intrinsics);
+    let objects = first.object_count();
+    let mut scene = first;
+
+    let mut attempts = Vec::new();
+    let (mut successes, mut lost, mut failures_in_row) = (0u32, 0usize, 0u32);
+    let (mut frames, mut detection_ms, mut configurations) = (0u32, 0.0f64, 0usize);
+    let end = loop {
+        if scene.object_count() == 0 {
+            break SceneEnd::Cleared;
+        }
+        if attempts.len() as u32 >= cfg.max_attempts_per_scene {
+            break SceneEnd::AttemptLimit;
+        }
+        let k = attempts.len() as u64;
+        let t = Instant::now();
+        let clean = scene.render_depth(&camera);
+        let depth = if level.noisy() {
+            let noise_seed = if k == 0 {
+                derive_seed(seed, 2)
+            } else {
+                derive_seed(derive_seed(seed, 2), k)
+            };
+            add_dex_noise(&clean, noise_seed, &gen.noise)
+        } else {
+            clean
+        };
+        let render_ms = ms(t);
+        let t = Instant::now();
+        let grid = fuse_normal_grid(&depth, &camera, &gen.workspace, &gen.fusion)?;
+        let fusion_ms = ms(t);
+        let t = Instant::now();
+        let configs = detector.infer(&grid.view(), derive_seed(derive_seed(seed, 4), k))?;
+        let inference_ms = ms(t);
+        let t = Instant::now();
+        let picks = select(
+            &configs,
+            &grid.view(),
+            scene.bin(),
+            &gen.gripper,
+            &cfg.selection,
+        )?;
+        let selection_ms = ms(t);
+        frames += 1;
+        detection_ms += fusion_ms + inference_ms + selection_ms;
+        configurations += configs.len();
+        let Some(pick) = picks.picks.first() else {
+            break SceneEnd::NoGrasp;
+        };
+        let t = Instant::now();
+        let ex = execute_grasp(
+            &scene,
+            meshes,
+            &gen.gripper,
+            &GraspCommand::from(pick),
+            &cfg.execution,
+        )?;
+        let execution_ms = ms(t);
+        let r = &ex.report;
+        attempts.push(AttemptRecord {
+            attempt: k as u32,
+            objects_before: scene.object_count(),
+            configurations: configs.len(),
+            quality: pick.quality,
+            collision_score: pick.collision_score,
+            approach_index: pick.approach_index,
+            width_m: pick.width,
+            opening_m: pick.opening_m,
+            outcome: r.outcome,
+            lifted: r.lifted_objects.len(),
+            lost: r.lost_objects.len(),
+            final_opening_m: r.final_opening_m,
+            render_ms,
+            fusion_ms,
+            inference_ms,
+            selection_ms,
+            execution_ms,
+        });
+        lost += r.lost_objects.len();
+        if r.outcome.is_success() {
+            successes += 1;
+            failures_in_row = 0;
+        } else {
+            failures_in_row += 1;
+        }
+        scene = Scene::with_meshes(ex.scene_after, meshes)?;
+        if failures_in_row >= cfg.max_consecutive_failures {
+            break SceneEnd::ConsecutiveFailures;
+        }
+    };
+    let summary = SceneSummary {
+        objects,
+        attempts: attempts.len() as u32,
+        successes,
+        lost,
+        remaining: scene.object_count(),
+        end,
+        frames,
+        detection_ms,
+        configurations,
+        scene_ms: ms(started),
+    };
+    Ok(SceneRun { attempts, summary })
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
