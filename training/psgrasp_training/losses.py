@@ -181,6 +181,10 @@ class GraspTargets:
 def grasp_targets(scene: Scene, index: GraspIndex, points: torch.Tensor, cfg: Config) -> GraspTargets:
     """Label points by their neighbour grasps."""
     nb = index.query(points, cfg.contacts.neighbour_radius_m, cfg.contacts.max_neighbours)
+    n = len(points)
+    if len(scene.contact) == 0:  # a scene without grasps: every point is a negative
+        return GraspTargets(nb, torch.zeros(n, dtype=torch.bool), torch.zeros(n, 3), torch.zeros(n),
+                            torch.zeros(n), torch.zeros(n, N_APPROACHES))
     valid = nb.valid
     has = valid.any(1)
     safe = nb.idx.clamp(min=0)

@@ -133,3 +133,13 @@ def test_loss_gradients_are_finite_for_antipodal_prediction():
     terms = run_loss(cfg, out)
     terms["grasp"].backward()
     assert torch.isfinite(terms["grasp"]) and torch.isfinite(out["baseline"].grad).all()
+
+
+def test_scene_without_grasps():
+    cfg = config_from_dict({})
+    scene = one_grasp_scene()
+    empty = Scene(normals=scene.normals, labels=scene.labels, contact=torch.zeros(0, 3), baseline=torch.zeros(0, 3),
+                  width=torch.zeros(0), quality=torch.zeros(0), collision_free=torch.zeros(0, 18),
+                  voxel_size_m=scene.voxel_size_m)
+    terms = run_loss(cfg, outputs(), scene=empty)
+    assert float(terms["baseline"]) == 0 and float(terms["quality"]) == pytest.approx(0.8)
