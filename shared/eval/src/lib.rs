@@ -5,15 +5,25 @@
 //! - [`protocol`]: the paper's clearing protocol on one test scene: render → fusion → detector →
 //!   selection → execution, round after round.
 //! - [`detectors`]: detectors as data (named `BackendConfig`s, a TOML list).
+//! - [`records`]: the resumable run directory (`run.json`, `records.jsonl`, one JSON line per
+//!   attempt and per finished scene).
+//! - [`report`] and [`plot`]: SR/CR per level and detector as Markdown, JSON and a PNG chart.
+//! - [`cli`]: `psgrasp eval` ([`EvalArgs`], [`run_eval`]): detectors × levels × seeds × scenes in
+//!   parallel, resumable, with progress and the reports at the end.
 //!
 //! Determinism: every random process takes a seed; the same seed gives the same outcome on the
 //! same build and platform (rapier is not built with cross-platform determinism).
 #![warn(missing_docs)]
 
+pub mod cli;
 pub mod detectors;
 pub mod execute;
+pub mod plot;
 pub mod protocol;
+pub mod records;
+pub mod report;
 
+pub use cli::{run_eval, EvalArgs};
 pub use detectors::{default_detectors, DetectorList, DetectorSpec};
 pub use execute::{
     execute_grasp, hand_collides, pregrasp_pose, Execution, ExecutionConfig, ExecutionReport,
@@ -76,6 +86,30 @@ pub enum EvalError {
     /// Grasp selection could not run.
     #[error("selection failed: {0}")]
     Selection(#[from] psgrasp_selection::SelectionError),
+    /// A records or run file is unreadable or could not be encoded.
+    #[error("{path}: {reason}")]
+    Records {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The output directory holds a run made with other settings.
+    #[error("{dir} holds an evaluation with different {what}; use another --out")]
+    RunMismatch {
+        /// The directory.
+        dir: PathBuf,
+        /// What differs.
+        what: String,
+    },
+    /// A PNG could not be written.
+    #[error("{path}: PNG encoding failed: {reason}")]
+    Png {
+        /// The file.
+        path: PathBuf,
+        /// Encoder message.
+        reason: String,
+    },
     /// A file could not be read or written.
     #[error("{path}: {source}")]
     Io {

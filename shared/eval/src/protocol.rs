@@ -21,7 +21,7 @@ use crate::EvalError;
 use psgrasp_datagen::{derive_seed, Difficulty, GenerationConfig};
 use psgrasp_fusion::fuse_normal_grid;
 use psgrasp_inference::InferenceBackend;
-use psgrasp_selection::{select, SelectionConfig};
+use psgrasp_selection::{select, RejectionCounts, SelectionConfig};
 use psgrasp_sim::{
     add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Scene,
 };
@@ -163,6 +163,9 @@ pub struct SceneSummary {
     pub configurations: usize,
     /// Wall time of the whole scene, milliseconds.
     pub scene_ms: f64,
+    /// Why selection found nothing on the last frame (scenes ending in [`SceneEnd::NoGrasp`]).
+    #[serde(default)]
+    pub final_rejections: Option<RejectionCounts>,
 }
 
 /// The result of [`run_scene`].
@@ -212,6 +215,7 @@ pub fn run_scene(
     let mut attempts = Vec::new();
     let (mut successes, mut lost, mut failures_in_row) = (0u32, 0usize, 0u32);
     let (mut frames, mut detection_ms, mut configurations) = (0u32, 0.0f64, 0usize);
+    let mut final_rejections = None;
     let end = loop {
         if scene.object_count() == 0 {
             break SceneEnd::Cleared;
@@ -252,6 +256,7 @@ pub fn run_scene(
         detection_ms += fusion_ms + inference_ms + selection_ms;
         configurations += configs.len();
         let Some(pick) = picks.picks.first() else {
+            final_rejections = Some(picks.rejected);
             break SceneEnd::NoGrasp;
         };
         let t = Instant::now();
@@ -306,6 +311,7 @@ pub fn run_scene(
         detection_ms,
         configurations,
         scene_ms: ms(started),
+        final_rejections,
     };
     Ok(SceneRun { attempts, summary })
 }

@@ -1,0 +1,380 @@
+//! The `psgrasp eval` command: argument struct and run function.
+//!
+//! ```text
+//! psgrasp eval --detector analytic --level easy,medium,challenging --scenes 100 --seed 0 --out eval-out
+//! ```
+//!
+//! Every (detector, level, seed, scene) is one job; jobs run in parallel on `--jobs` threads
+//! (each with its own detector instances) in scene-major order, so an interrupted run has
+//! comparable scene counts everywhere. Finished scenes are appended to `OUT/records.jsonl`; a
+//! rerun with the same `--out` skips them. At the end `OUT/summary.md`, `OUT/summary.json` and
+//! `OUT/summary.png` are written and the Markdown is printed.
+use crate::detectors::{default_detectors, DetectorList, DetectorSpec};
+use crate::protocol::{run_scene, ProtocolConfig};
+use crate::records::{write_atomic, RecordsFile, RunDescription, SceneKey, RECORDS_VERSION};
+use crate::report::summarize;
+use crate::EvalError;
+use anyhow::Context;
+use psgrasp_datagen::cli::{build_library, default_mesh_dir};
+use psgrasp_datagen::{Difficulty, ObjectSource};
+use psgrasp_inference::InferenceBackend;
+use std::collections::{BTreeMap, HashMap};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::mpsc;
+use std::time::Instant;
+
+/// Arguments of `psgrasp eval`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct EvalArgs {
+    /// Detectors to compare, by name, comma-separated (default: every detector in the list).
+    #[arg(long = "detector", value_delimiter = ',')]
+    pub detectors: Vec<String>,
+    /// Detector list (TOML `[[detector]]` tables with `name`, `label`, `backend`). Default: the
+    /// analytic baseline plus one learned detector per model directory under --models-dir.
+    #[arg(long)]
+    pub detectors_file: Option<PathBuf>,
+    /// Where the default detector list looks for model directories (folders with `card.json`).
+    #[arg(long, default_value = "models")]
+    pub models_dir: PathBuf,
+    /// Test levels, comma-separated.
+    #[arg(long = "level", value_enum, value_delimiter = ',',
+          default_values_t = [Difficulty::Easy, Difficulty::Medium, Difficulty::Challenging])]
+    pub levels: Vec<Difficulty>,
+    /// Scenes per level and seed (the paper: 100).
+    #[arg(long, default_value_t = 100)]
+    pub scenes: u64,
+    /// Run seeds, comma-separated; scene i of seed S is the dataset's test scene of that level
+    /// with seed `derive_seed(S, i)`. Several seeds give mean ± sd over seeds.
+    #[arg(long = "seed", value_delimiter = ',', default_values_t = [0u64])]
+    pub seeds: Vec<u64>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// Output directory (created; a run into an existing directory resumes it).
+    #[arg(long, default_value = "eval-out")]
+    pub out: PathBuf,
+    /// TOML file with a `ProtocolConfig` (scene generation, selection, execution; any field may be
+    /// left out).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Object source of the test scenes.
+    #[arg(long, value_enum, default_value_t = ObjectSource::Procedural)]
+    pub objects: ObjectSource,
+    /// Directory of the fetched meshes (default `~/.cache/psgrasp/objects`).
+    #[arg(long)]
+    pub mesh_dir: Option<PathBuf>,
+    /// Only rebuild the reports from the records already in --out.
+    #[arg(long)]
+    pub report_only: bool,
+    /// No progress line.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+fn load_protocol(path: Option<&Path>) -> anyhow::Result<ProtocolConfig> {
+    let cfg = match path {
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            toml::from_str(&text).with_context(|| format!("parsing {}", p.display()))?
+        }
+        None => ProtocolConfig::default(),
+    };
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+fn check_args(args: &EvalArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.scenes > 0, "--scenes must be at least 1");
+    anyhow::ensure!(!args.seeds.is_empty(), "--seed needs at least one value");
+    anyhow::ensure!(!args.levels.is_empty(), "--level needs at least one value");
+    anyhow::ensure!(
+        !args.levels.contains(&Difficulty::Train),
+        "--level takes the test levels easy, medium and challenging"
+    );
+    anyhow::ensure!(args.jobs != Some(0), "--jobs must be at least 1");
+    Ok(())
+}
+
+fn dedup<T: PartialEq + Clone>(v: &[T]) -> Vec<T> {
+    let mut out: Vec<T> = Vec::new();
+    for x in v {
+        if !out.contains(x) {
+            out.push(x.clone());
+        }
+    }
+    out
+}
+
+struct Progress {
+    total: usize,
+    done: usize,
+    ran: usize,
+    attempts: usize,
+    successes: usize,
+    objects: usize,
+    start: Instant,
+    quiet: bool,
+}
+
+impl Progress {
+    fn draw(&self) {
+        if self.quiet {
+            return;
+        }
+        let frac = if self.total == 0 {
+            1.0
+        } else {
+            self.done as f64 / self.total as f64
+        };
+        let filled = (frac * 30.0).round() as usize;
+        let per = if self.ran > 0 {
+            self.start.elapsed().as_secs_f64() / self.ran as f64
+        } else {
+            0.0
+        };
+        let rate = |a: usize, b: usize| {
+            if b > 0 {
+                format!("{:.0}%", 100.0 * a as f64 / b as f64)
+            } else {
+                "-".into()
+            }
+        };
+        eprint!(
+            "\r[{}{}] {}/{} scenes  SR {} CR {}  {:.1} s/scene  ETA {:.0} s   ",
+            "#".repeat(filled),
+            " ".repeat(30 - filled),
+            self.done,
+            self.total,
+            rate(self.successes, self.attempts),
+            rate(self.successes, self.objects),
+            per,
+            per * (self.total - self.done) as f64
+        );
+        let _ = std::io::stderr().flush();
+    }
+}
+
+/// Runs `psgrasp eval` (see the module docs).
+pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
+    check_args(args)?;
+    let protocol = load_protocol(args.config.as_deref())?;
+    let list = match &args.detectors_file {
+        Some(p) => DetectorList::read(p)?,
+        None => default_detectors(&args.models_dir),
+    };
+    let detectors = list.pick(&dedup(&args.detectors))?;
+    anyhow::ensure!(!detectors.is_empty(), "the detector list is empty");
+    let levels = dedup(&args.levels);
+    let seeds = dedup(&args.seeds);
+
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let request = RunDescription {
+        format: "psgrasp-eval".into(),
+        version: RECORDS_VERSION,
+        object_source: args.objects.name().into(),
+        protocol: protocol.clone(),
+        detectors: detectors
+            .iter()
+            .map(|d| (d.name.clone(), d.effective_backend(&protocol)))
+            .collect::<BTreeMap<_, _>>(),
+    };
+    let run = match RunDescription::read(&args.out)? {
+        Some(mut stored) => {
+            stored.merge(&request, &args.out)?;
+            stored
+        }
+        None => request,
+    };
+    if !args.report_only {
+        run.write(&args.out)?;
+    }
+    let mut records = RecordsFile::open(&args.out)?;
+    if records.dropped() > 0 && !args.quiet {
+        eprintln!(
+            "resuming: dropped {} lines of unfinished scenes",
+            records.dropped()
+        );
+    }
+
+    if !args.report_only {
+        run_jobs(args, &protocol, &detectors, &levels, &seeds, &mut records)?;
+    }
+
+    let names: Vec<(String, String)> = detectors
+        .iter()
+        .map(|d| (d.name.clone(), d.display_name().to_owned()))
+        .collect();
+    let summary = summarize(records.lines(), &names, &levels, &seeds, args.scenes);
+    let mut md = format!(
+        "# psgrasp eval: {} scenes per level and seed, seeds {:?}, objects {}\n\n",
+        args.scenes,
+        seeds,
+        args.objects.name()
+    );
+    md.push_str(&summary.markdown(&seeds));
+    write_atomic(&args.out.join("summary.md"), md.as_bytes())?;
+    let json = serde_json::to_vec_pretty(&summary).context("encoding the summary")?;
+    write_atomic(&args.out.join("summary.json"), &json)?;
+    summary
+        .chart()
+        .render()
+        .write_png(&args.out.join("summary.png"))?;
+    println!("{md}");
+    if !args.quiet {
+        eprintln!(
+            "wrote {}/summary.md, summary.json, summary.png",
+            args.out.display()
+        );
+    }
+    Ok(())
+}
+
+fn run_jobs(
+    args: &EvalArgs,
+    protocol: &ProtocolConfig,
+    detectors: &[DetectorSpec],
+    levels: &[Difficulty],
+    seeds: &[u64],
+    records: &mut RecordsFile,
+) -> anyhow::Result<()> {
+    // Scene-major order: an interrupted run has about as many scenes in every cell.
+    let mut todo = Vec::new();
+    let mut total = 0;
+    for scene in 0..args.scenes {
+        for &seed in seeds {
+            for &level in levels {
+                for d in detectors {
+                    let key = SceneKey {
+                        detector: d.name.clone(),
+                        level,
+                        seed,
+                        scene,
+                    };
+                    total += 1;
+                    if !records.is_done(&key) {
+                        todo.push(key);
+                    }
+                }
+            }
+        }
+    }
+    if todo.is_empty() {
+        return Ok(());
+    }
+    // Fail fast on a detector that cannot be built (missing model, bad settings).
+    for d in detectors {
+        d.build(protocol)?;
+    }
+    let mesh_dir = args.mesh_dir.clone().unwrap_or_else(default_mesh_dir);
+    let (library, meshes) = build_library(args.objects, &mesh_dir)?;
+    let jobs = args
+        .jobs
+        .unwrap_or_else(|| {
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
+        })
+        .min(todo.len())
+        .max(1);
+
+    let mut progress = Progress {
+        total,
+        done: total - todo.len(),
+        ran: 0,
+        attempts: 0,
+        successes: 0,
+        objects: 0,
+        start: Instant::now(),
+        quiet: args.quiet,
+    };
+    progress.draw();
+    let by_name: HashMap<&str, &DetectorSpec> =
+        detectors.iter().map(|d| (d.name.as_str(), d)).collect();
+    let next = AtomicUsize::new(0);
+    let stop = AtomicBool::new(false);
+    type Outcome = Result<(SceneKey, crate::protocol::SceneRun), (SceneKey, EvalError)>;
+    let (tx, rx) = mpsc::channel::<Outcome>();
+    let mut first_error: Option<anyhow::Error> = None;
+    std::thread::scope(|s| {
+        for _ in 0..jobs {
+            let tx = tx.clone();
+            let (todo, next, stop, library, meshes, by_name) =
+                (&todo, &next, &stop, &library, &meshes, &by_name);
+            s.spawn(move || {
+                let mut backends: HashMap<String, Box<dyn InferenceBackend>> = HashMap::new();
+                loop {
+                    if stop.load(Ordering::Relaxed) {
+                        break;
+                    }
+                    let k = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(key) = todo.get(k) else { break };
+                    let result = (|| {
+                        if !backends.contains_key(&key.detector) {
+                            let spec = by_name.get(key.detector.as_str()).ok_or_else(|| {
+                                EvalError::UnknownDetector {
+                                    name: key.detector.clone(),
+                                    known: by_name.keys().map(|k| k.to_string()).collect(),
+                                }
+                            })?;
+                            backends.insert(key.detector.clone(), spec.build(protocol)?);
+                        }
+                        let backend = backends
+                            .get_mut(&key.detector)
+                            .expect("inserted just above");
+                        run_scene(
+                            key.level,
+                            key.seed,
+                            key.scene,
+                            library,
+                            meshes,
+                            backend.as_mut(),
+                            protocol,
+                        )
+                    })();
+                    let msg = result
+                        .map(|r| (key.clone(), r))
+                        .map_err(|e| (key.clone(), e));
+                    if tx.send(msg).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(tx);
+        for msg in rx {
+            match msg {
+                Ok((key, run)) => {
+                    if let Err(e) = records.append_scene(&key, &run.attempts, &run.summary) {
+                        stop.store(true, Ordering::Relaxed);
+                        first_error.get_or_insert(e.into());
+                        continue;
+                    }
+                    progress.done += 1;
+                    progress.ran += 1;
+                    progress.attempts += run.summary.attempts as usize;
+                    progress.successes += run.summary.successes as usize;
+                    progress.objects += run.summary.objects;
+                    progress.draw();
+                }
+                Err((key, e)) => {
+                    stop.store(true, Ordering::Relaxed);
+                    first_error.get_or_insert(anyhow::Error::from(e).context(format!(
+                        "detector {} level {:?} seed {} scene {}",
+                        key.detector, key.level, key.seed, key.scene
+                    )));
+                }
+            }
+        }
+    });
+    if !args.quiet {
+        eprintln!();
+    }
+    match first_error {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}

@@ -1,0 +1,411 @@
+//! Metrics over finished scenes and the reports: a Markdown summary, a JSON summary and a PNG bar
+//! chart of SR and CR per level and detector.
+//!
+//! Per (detector, level) and seed: success rate `SR = Σ successes / Σ attempts` and clearing rate
+//! `CR = Σ successes / Σ objects` over the scenes (pooled, as VGN and the paper count them). The
+//! table gives the mean over seeds ± the standard deviation over seeds; with a single seed, ± is
+//! the standard error over scenes instead (ratio estimator: `√(n/(n−1)·Σ(s_i − R·a_i)²) / Σ a_i`).
+//! Detection time is fusion + inference + selection per frame; "grasps/s" are successful grasps
+//! per second of detection time.
+use crate::plot::{BarChart, Panel};
+use crate::records::{RecordLine, SceneKey};
+use psgrasp_datagen::Difficulty;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+/// A rate with its spread.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Estimate {
+    /// Mean over seeds (a fraction in [0, 1]); `None` without data.
+    pub mean: Option<f64>,
+    /// Standard deviation over seeds, or the standard error over scenes for one seed.
+    pub spread: f64,
+}
+
+/// The metrics of one detector on one level.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CellMetrics {
+    /// Detector name.
+    pub detector: String,
+    /// Level.
+    pub level: Difficulty,
+    /// Seeds with at least one scene.
+    pub seeds: usize,
+    /// Finished scenes.
+    pub scenes: usize,
+    /// Objects at the start, summed.
+    pub objects: usize,
+    /// Attempts.
+    pub attempts: usize,
+    /// Successful attempts.
+    pub successes: usize,
+    /// Objects knocked out of the bin.
+    pub lost: usize,
+    /// Success rate.
+    pub success_rate: Estimate,
+    /// Clearing rate.
+    pub clearing_rate: Estimate,
+    /// Mean detection time (fusion + inference + selection) per frame, milliseconds.
+    pub detection_ms_per_frame: f64,
+    /// Mean grasp configurations per frame.
+    pub configurations_per_frame: f64,
+    /// Successful grasps per second of detection time.
+    pub grasps_per_detection_s: f64,
+    /// Mean physics time per attempt, milliseconds.
+    pub execution_ms_per_attempt: f64,
+    /// How the scenes ended.
+    pub ends: BTreeMap<String, usize>,
+    /// How the attempts ended.
+    pub outcomes: BTreeMap<String, usize>,
+}
+
+/// The whole summary.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    /// Detector names in table order, with display labels.
+    pub detectors: Vec<(String, String)>,
+    /// Levels in table order.
+    pub levels: Vec<Difficulty>,
+    /// One cell per detector and level (detector-major).
+    pub cells: Vec<CellMetrics>,
+}
+
+fn snake<T: Serialize>(v: &T) -> String {
+    serde_json::to_value(v)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_owned))
+        .unwrap_or_default()
+}
+
+/// Standard error of the ratio `Σ num / Σ den` over units (delta method).
+fn ratio_se(num: &[f64], den: &[f64]) -> f64 {
+    let n = num.len();
+    let total: f64 = den.iter().sum();
+    if n < 2 || total <= 0.0 {
+        return 0.0;
+    }
+    let r = num.iter().sum::<f64>() / total;
+    let ss: f64 = num.iter().zip(den).map(|(s, a)| (s - r * a).powi(2)).sum();
+    (n as f64 / (n as f64 - 1.0) * ss).sqrt() / total
+}
+
+fn mean_sd(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let sd = if v.len() > 1 {
+        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+    } else {
+        0.0
+    };
+    (m, sd)
+}
+
+fn estimate(per_seed: &BTreeMap<u64, (Vec<f64>, Vec<f64>)>) -> Estimate {
+    let rates: Vec<f64> = per_seed
+        .values()
+        .filter_map(|(num, den)| {
+            let d: f64 = den.iter().sum();
+            (d > 0.0).then(|| num.iter().sum::<f64>() / d)
+        })
+        .collect();
+    if rates.is_empty() {
+        return Estimate {
+            mean: None,
+            spread: 0.0,
+        };
+    }
+    let (mean, sd) = mean_sd(&rates);
+    let spread = if rates.len() > 1 {
+        sd
+    } else {
+        per_seed
+            .values()
+            .next()
+            .map_or(0.0, |(num, den)| ratio_se(num, den))
+    };
+    Estimate {
+        mean: Some(mean),
+        spread,
+    }
+}
+
+/// Computes the summary over `lines` for the given detectors (name, label), levels, seeds and
+/// scenes `0..scenes`.
+pub fn summarize(
+    lines: &[RecordLine],
+    detectors: &[(String, String)],
+    levels: &[Difficulty],
+    seeds: &[u64],
+    scenes: u64,
+) -> Summary {
+    let wanted = |k: &SceneKey| k.scene < scenes && seeds.contains(&k.seed);
+    let mut cells = Vec::new();
+    for (name, _) in detectors {
+        for &level in levels {
+            let mine = |k: &SceneKey| &k.detector == name && k.level == level && wanted(k);
+            let mut sr: BTreeMap<u64, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+            let mut cr: BTreeMap<u64, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+            let mut c = CellMetrics {
+                detector: name.clone(),
+                level,
+                seeds: 0,
+                scenes: 0,
+                objects: 0,
+                attempts: 0,
+                successes: 0,
+                lost: 0,
+                success_rate: Estimate {
+                    mean: None,
+                    spread: 0.0,
+                },
+                clearing_rate: Estimate {
+                    mean: None,
+                    spread: 0.0,
+                },
+                detection_ms_per_frame: 0.0,
+                configurations_per_frame: 0.0,
+                grasps_per_detection_s: 0.0,
+                execution_ms_per_attempt: 0.0,
+                ends: BTreeMap::new(),
+                outcomes: BTreeMap::new(),
+            };
+            let (mut frames, mut det_ms, mut configs, mut exec_ms) = (0u64, 0.0, 0usize, 0.0);
+            for line in lines {
+                match line {
+                    RecordLine::Scene { key, summary: s } if mine(key) => {
+                        c.scenes += 1;
+                        c.objects += s.objects;
+                        c.attempts += s.attempts as usize;
+                        c.successes += s.successes as usize;
+                        c.lost += s.lost;
+                        frames += u64::from(s.frames);
+                        det_ms += s.detection_ms;
+                        configs += s.configurations;
+                        *c.ends.entry(snake(&s.end)).or_default() += 1;
+                        let e = sr.entry(key.seed).or_default();
+                        e.0.push(f64::from(s.successes));
+                        e.1.push(f64::from(s.attempts));
+                        let e = cr.entry(key.seed).or_default();
+                        e.0.push(f64::from(s.successes));
+                        e.1.push(s.objects as f64);
+                    }
+                    RecordLine::Attempt { key, attempt } if mine(key) => {
+                        *c.outcomes.entry(snake(&attempt.outcome)).or_default() += 1;
+                        exec_ms += attempt.execution_ms;
+                    }
+                    _ => {}
+                }
+            }
+            c.seeds = cr.len();
+            c.success_rate = estimate(&sr);
+            c.clearing_rate = estimate(&cr);
+            if frames > 0 {
+                c.detection_ms_per_frame = det_ms / frames as f64;
+                c.configurations_per_frame = configs as f64 / frames as f64;
+            }
+            if det_ms > 0.0 {
+                c.grasps_per_detection_s = c.successes as f64 / (det_ms / 1e3);
+            }
+            if c.attempts > 0 {
+                c.execution_ms_per_attempt = exec_ms / c.attempts as f64;
+            }
+            cells.push(c);
+        }
+    }
+    Summary {
+        detectors: detectors.to_vec(),
+        levels: levels.to_vec(),
+        cells,
+    }
+}
+
+fn level_name(l: Difficulty) -> &'static str {
+    match l {
+        Difficulty::Train => "Train",
+        Difficulty::Easy => "Easy",
+        Difficulty::Medium => "Medium",
+        Difficulty::Challenging => "Challenging",
+    }
+}
+
+fn pct(e: &Estimate) -> String {
+    match e.mean {
+        Some(m) => format!("{:.1} ± {:.1}", 100.0 * m, 100.0 * e.spread),
+        None => "–".into(),
+    }
+}
+
+impl Summary {
+    fn cell(&self, detector: &str, level: Difficulty) -> Option<&CellMetrics> {
+        self.cells
+            .iter()
+            .find(|c| c.detector == detector && c.level == level)
+    }
+
+    /// The Markdown report: the Table I layout (SR/CR per level), then detection cost and how
+    /// scenes and attempts ended.
+    pub fn markdown(&self, seeds: &[u64]) -> String {
+        let mut s = String::new();
+        let spread = if seeds.len() > 1 {
+            format!("mean ± sd over {} seeds", seeds.len())
+        } else {
+            "± standard error over scenes, one seed".into()
+        };
+        let _ = writeln!(
+            s,
+            "## Success rate (SR) and clearing rate (CR), % ({spread})\n"
+        );
+        let mut head = String::from("| Detector |");
+        let mut rule = String::from("|---|");
+        for l in &self.levels {
+            let _ = write!(head, " {} SR | {} CR |", level_name(*l), level_name(*l));
+            rule.push_str("---|---|");
+        }
+        let _ = writeln!(s, "{head} scenes per level |\n{rule}---|");
+        for (name, label) in &self.detectors {
+            let mut row = format!("| {label} |");
+            let mut counts = Vec::new();
+            for l in &self.levels {
+                let c = self.cell(name, *l);
+                let (a, b) = c.map_or(("–".into(), "–".into()), |c| {
+                    (pct(&c.success_rate), pct(&c.clearing_rate))
+                });
+                let _ = write!(row, " {a} | {b} |");
+                counts.push(c.map_or(0, |c| c.scenes).to_string());
+            }
+            let _ = writeln!(s, "{row} {} |", counts.join(" / "));
+        }
+        let _ = writeln!(s, "\n## Per level\n");
+        let _ = writeln!(
+            s,
+            "| Detector | Level | scenes | objects | attempts | successes | lost | detection ms/frame | configurations/frame | grasps/s detection | physics ms/attempt | scene ends | attempt outcomes |"
+        );
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+        let fmt_map = |m: &BTreeMap<String, usize>| {
+            m.iter()
+                .map(|(k, v)| format!("{k} {v}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        for c in &self.cells {
+            let label = self
+                .detectors
+                .iter()
+                .find(|(n, _)| n == &c.detector)
+                .map_or(c.detector.as_str(), |(_, l)| l.as_str());
+            let _ = writeln!(
+                s,
+                "| {label} | {} | {} | {} | {} | {} | {} | {:.0} | {:.0} | {:.2} | {:.0} | {} | {} |",
+                level_name(c.level),
+                c.scenes,
+                c.objects,
+                c.attempts,
+                c.successes,
+                c.lost,
+                c.detection_ms_per_frame,
+                c.configurations_per_frame,
+                c.grasps_per_detection_s,
+                c.execution_ms_per_attempt,
+                fmt_map(&c.ends),
+                fmt_map(&c.outcomes),
+            );
+        }
+        s
+    }
+
+    /// The bar chart: SR (top) and CR (bottom), one group per level, one bar per detector.
+    pub fn chart(&self) -> BarChart {
+        let panel = |title: &str, rate: fn(&CellMetrics) -> &Estimate| Panel {
+            title: title.into(),
+            groups: self
+                .levels
+                .iter()
+                .map(|l| {
+                    let values = self
+                        .detectors
+                        .iter()
+                        .map(|(n, _)| {
+                            self.cell(n, *l)
+                                .and_then(|c| rate(c).mean.map(|m| (m, rate(c).spread)))
+                        })
+                        .collect();
+                    (level_name(*l).to_uppercase(), values)
+                })
+                .collect(),
+        };
+        BarChart {
+            series: self.detectors.iter().map(|(_, l)| l.clone()).collect(),
+            panels: vec![
+                panel("SUCCESS RATE (%)", |c| &c.success_rate),
+                panel("CLEARING RATE (%)", |c| &c.clearing_rate),
+            ],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::{SceneEnd, SceneSummary};
+
+    fn scene(seed: u64, index: u64, objects: usize, attempts: u32, successes: u32) -> RecordLine {
+        RecordLine::Scene {
+            key: SceneKey {
+                detector: "a".into(),
+                level: Difficulty::Easy,
+                seed,
+                scene: index,
+            },
+            summary: SceneSummary {
+                objects,
+                attempts,
+                successes,
+                lost: 0,
+                remaining: objects - successes as usize,
+                end: SceneEnd::NoGrasp,
+                frames: attempts + 1,
+                detection_ms: 100.0 * f64::from(attempts + 1),
+                configurations: 10,
+                scene_ms: 1.0,
+                final_rejections: None,
+            },
+        }
+    }
+
+    #[test]
+    fn rates_pool_scenes_and_spread_follows_the_seed_count() {
+        let detectors = [("a".to_string(), "A".to_string())];
+        // One seed: scenes (objects, attempts, successes) = (4, 4, 2), (2, 2, 2).
+        let lines = vec![
+            scene(0, 0, 4, 4, 2),
+            scene(0, 1, 2, 2, 2),
+            scene(0, 5, 9, 9, 0),
+        ];
+        let s = summarize(&lines, &detectors, &[Difficulty::Easy], &[0], 2);
+        let c = &s.cells[0];
+        assert_eq!((c.scenes, c.objects, c.attempts, c.successes), (2, 6, 6, 4));
+        assert!((c.success_rate.mean.unwrap() - 4.0 / 6.0).abs() < 1e-12);
+        assert!((c.clearing_rate.mean.unwrap() - 4.0 / 6.0).abs() < 1e-12);
+        // Ratio SE by hand: r = 2/3, residuals 2 − 8/3 = −2/3 and 2 − 4/3 = 2/3.
+        let se = (2.0f64 * (4.0 / 9.0 + 4.0 / 9.0)).sqrt() / 6.0;
+        assert!((c.success_rate.spread - se).abs() < 1e-12);
+        // 4 successes over 8 frames of 100 ms.
+        assert!((c.grasps_per_detection_s - 5.0).abs() < 1e-9);
+        assert!((c.detection_ms_per_frame - 100.0).abs() < 1e-9);
+
+        // Two seeds: SR 0.5 and 1.0 → mean 0.75, sd √0.125.
+        let lines = vec![scene(0, 0, 4, 4, 2), scene(1, 0, 2, 2, 2)];
+        let s = summarize(&lines, &detectors, &[Difficulty::Easy], &[0, 1], 1);
+        let c = &s.cells[0];
+        assert_eq!(c.seeds, 2);
+        assert!((c.success_rate.mean.unwrap() - 0.75).abs() < 1e-12);
+        assert!((c.success_rate.spread - 0.125f64.sqrt()).abs() < 1e-12);
+        let md = s.markdown(&[0, 1]);
+        assert!(md.contains("| A | 75.0 ± 35.4 |"), "{md}");
+        // No data: a dash, not a zero.
+        let s = summarize(&[], &detectors, &[Difficulty::Medium], &[0], 10);
+        assert!(s.cells[0].success_rate.mean.is_none());
+        assert!(s.markdown(&[0]).contains("| A | – | – | 0 |"));
+    }
+}
