@@ -25,9 +25,13 @@ MLP_RAW_OUTPUTS = 3 + 1 + 1 + 1 + N_APPROACHES
 BASELINE_EPS = 1e-8
 
 
+#: Run CPU training convolutions as a batch of two halves (see :class:`Conv3d`); False = plain PyTorch.
+CPU_BATCH_SPLIT = True
+
+
 def _cpu_split(x: torch.Tensor) -> bool:
     """Whether to run a convolution as a batch of two halves (see :class:`Conv3d`)."""
-    return x.device.type == "cpu" and torch.is_grad_enabled() and x.shape[0] == 1 and x.shape[2] % 2 == 0
+    return CPU_BATCH_SPLIT and x.device.type == "cpu" and torch.is_grad_enabled() and x.shape[0] == 1 and x.shape[2] % 2 == 0
 
 
 class Conv3d(nn.Conv3d):
