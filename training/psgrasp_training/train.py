@@ -18,7 +18,7 @@ import torch
 from .checkpoint import DatasetInfo, RunError, load_checkpoint, save_checkpoint, write_json
 from .config import Config
 from .data import Scene, SceneDataset, flip_scene
-from .decode import class_probabilities, sample_features
+from .decode import class_probabilities, sample_features, sample_grid, subvoxel_points
 from .export import export_model
 from .losses import (GraspIndex, contact_voxel_points, focal_loss, grasp_loss, grasp_targets,
                      predicted_voxel_points)
@@ -175,8 +175,6 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
         probs = class_probabilities(logits)
         pts = points.to(device)
         out = {k: v.cpu() for k, v in net.mlp(sample_features(encs, pts, scene.extent_m)).items()}
-        from .decode import sample_grid
-
         q = sample_grid(probs[:, 1:2], pts, scene.extent_m)[:, 0].cpu() * out["quality_prior"]
         q_err.append((q - targets.quality).abs())
         npts += len(points)
@@ -227,6 +225,7 @@ def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: 
     device = setup_torch(cfg)
     ds = SceneDataset(data, cfg)
     apply_dataset_geometry(cfg, ds.info)
+    torch.manual_seed(cfg.seed)
     net = GraspNet(cfg)
     start = 0
     elapsed0 = 0.0
@@ -240,9 +239,6 @@ def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: 
             log("warning: the dataset manifest changed since the checkpoint (resuming anyway)")
         net.load_state_dict(state["model"])
         start, elapsed0, opt_state = state["step"], state.get("elapsed_s", 0.0), state["optimizer"]
-    else:
-        torch.manual_seed(cfg.seed)
-        net = GraspNet(cfg)
     net.to(device).train()
     opt = torch.optim.Adam(net.parameters(), lr=cfg.train.lr)
     if opt_state is not None:
@@ -319,7 +315,6 @@ def hitrate_report(cfg: Config, data: Path, scenes: int, radii_m: list[float], l
     """Neighbour hit-rate (share of points with ≥ 1 true grasp within r) of the contact-point rules."""
     ds = SceneDataset(data, cfg)
     entries = (ds.train_entries + ds.val_entries)[:scenes]
-    from .decode import subvoxel_points
 
     results = {}
     for rule in ("voxel-uniform", "jittered-contact", "subvoxel-centres"):
