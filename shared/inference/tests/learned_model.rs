@@ -261,6 +261,8 @@ fn learned_config(kind: RuntimeKind) -> LearnedConfig {
         runtime: kind,
         threads: 1,
         mlp_batch: 100,
+        // No cap: the reference points are the first of *all* contact voxels.
+        max_contact_voxels: 1 << 20,
         ..LearnedConfig::default()
     }
 }
@@ -447,12 +449,20 @@ impl TempModel {
     }
 
     fn load(&self) -> Result<LearnedModel, ModelError> {
+        self.load_with(RuntimeKind::Tract)
+    }
+
+    fn load_with(&self, kind: RuntimeKind) -> Result<LearnedModel, ModelError> {
+        #[cfg(feature = "ort")]
+        let library = (kind == RuntimeKind::Ort).then(ort_library);
+        #[cfg(not(feature = "ort"))]
+        let library: Option<PathBuf> = None;
         LearnedModel::load(
             &self.dir,
             &workspace(),
             &gripper(),
-            RuntimeKind::Tract,
-            None,
+            kind,
+            library.as_deref(),
             1,
         )
     }
@@ -484,34 +494,44 @@ fn changed_onnx_files_are_refused_by_sha256() {
 
 #[test]
 fn truncated_or_garbage_onnx_is_an_error_not_a_panic() {
+    truncated_or_garbage(RuntimeKind::Tract);
+}
+
+#[cfg(feature = "ort")]
+#[test]
+fn truncated_or_garbage_onnx_is_an_error_not_a_panic_with_ort() {
+    truncated_or_garbage(RuntimeKind::Ort);
+}
+
+fn truncated_or_garbage(kind: RuntimeKind) {
     for file in ["unet.onnx", "mlp.onnx"] {
         let original = std::fs::read(model_dir().join(file)).unwrap();
         let cuts = [original.len() / 2, original.len() - 7, 100, 1];
         for cut in cuts {
-            let m = TempModel::new(&format!("cut-{file}-{cut}"));
+            let m = TempModel::new(&format!("cut-{}-{file}-{cut}", kind.name()));
             m.replace_with_matching_card(file, &original[..cut]);
             assert!(
                 matches!(
-                    m.load(),
+                    m.load_with(kind),
                     Err(ModelError::Graph { .. } | ModelError::GraphInterface { .. })
                 ),
                 "{file} cut at {cut}: {:?}",
-                m.load().map(|_| ())
+                m.load_with(kind).map(|_| ())
             );
         }
-        let m = TempModel::new(&format!("garbage-{file}"));
+        let m = TempModel::new(&format!("garbage-{}-{file}", kind.name()));
         m.replace_with_matching_card(file, b"this is not an onnx file at all");
         assert!(matches!(
-            m.load(),
+            m.load_with(kind),
             Err(ModelError::Graph { .. } | ModelError::GraphInterface { .. })
         ));
     }
     // The graphs swapped: loads as ONNX but the interface is wrong.
-    let m = TempModel::new("swapped");
+    let m = TempModel::new(&format!("swapped-{}", kind.name()));
     let unet = std::fs::read(model_dir().join("unet.onnx")).unwrap();
     m.replace_with_matching_card("mlp.onnx", &unet);
     assert!(matches!(
-        m.load(),
+        m.load_with(kind),
         Err(ModelError::GraphInterface { graph: "mlp", .. })
     ));
 }

@@ -551,8 +551,8 @@ mod ort_runtime {
     /// Environment variable naming `libonnxruntime.so` when the config names none.
     pub const ORT_DYLIB_ENV: &str = "ORT_DYLIB_PATH";
 
-    /// The library ONNX Runtime was loaded from (ONNX Runtime is loaded once per process).
-    static LOADED: Mutex<Option<PathBuf>> = Mutex::new(None);
+    /// The library ONNX Runtime was loaded from and its environment (one per process).
+    static LOADED: Mutex<Option<(PathBuf, ort::environment::Environment)>> = Mutex::new(None);
 
     fn unavailable(reason: impl Into<String>) -> ModelError {
         ModelError::RuntimeUnavailable {
@@ -561,8 +561,9 @@ mod ort_runtime {
         }
     }
 
-    /// Loads `libonnxruntime` from `library` (or `$ORT_DYLIB_PATH`) once per process.
-    fn ensure_loaded(library: Option<&Path>) -> Result<(), ModelError> {
+    /// Loads `libonnxruntime` from `library` (or `$ORT_DYLIB_PATH`) once per process and returns
+    /// the process's ONNX Runtime environment.
+    fn environment(library: Option<&Path>) -> Result<ort::environment::Environment, ModelError> {
         let path = match library {
             Some(p) => p.to_owned(),
             None => std::env::var_os(ORT_DYLIB_ENV)
@@ -574,7 +575,7 @@ mod ort_runtime {
                 })?,
         };
         let mut loaded = LOADED.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(prev) = loaded.as_ref() {
+        if let Some((prev, env)) = loaded.as_ref() {
             if prev != &path {
                 return Err(unavailable(format!(
                     "ONNX Runtime is already loaded from {} in this process, cannot switch to {}",
@@ -582,16 +583,18 @@ mod ort_runtime {
                     path.display()
                 )));
             }
-            return Ok(());
+            return Ok(env.clone());
         }
         if !path.is_file() {
             return Err(unavailable(format!("{} is not a file", path.display())));
         }
-        let builder = ort::init_from(&path)
-            .map_err(|e| unavailable(format!("cannot load {}: {e}", path.display())))?;
-        builder.with_name("psgrasp").commit();
-        *loaded = Some(path);
-        Ok(())
+        let env = ort::init_from(&path)
+            .map_err(|e| unavailable(format!("cannot load {}: {e}", path.display())))?
+            .with_name("psgrasp")
+            .build()
+            .map_err(|e| unavailable(format!("cannot create the environment: {e}")))?;
+        *loaded = Some((path, env.clone()));
+        Ok(env)
     }
 
     fn ort_graph_err(graph: &'static str) -> impl Fn(ort::Error) -> ModelError {
@@ -626,9 +629,14 @@ mod ort_runtime {
         }
     }
 
-    fn session(bytes: &[u8], graph: &'static str, threads: usize) -> Result<Session, ModelError> {
+    fn session(
+        env: &ort::environment::Environment,
+        bytes: &[u8],
+        graph: &'static str,
+        threads: usize,
+    ) -> Result<Session, ModelError> {
         let err = ort_graph_err(graph);
-        let builder = Session::builder().map_err(&err)?;
+        let builder = Session::builder(env).map_err(&err)?;
         let builder = builder
             .with_intra_threads(threads)
             .map_err(|e| err(e.into()))?;
@@ -668,10 +676,10 @@ mod ort_runtime {
             library: Option<&Path>,
             threads: usize,
         ) -> Result<Self, ModelError> {
-            ensure_loaded(library)?;
+            let env = environment(library)?;
             let threads = resolve_threads(threads);
-            let unet = session(&files.unet_onnx, "unet", threads)?;
-            let mlp = session(&files.mlp_onnx, "mlp", threads)?;
+            let unet = session(&env, &files.unet_onnx, "unet", threads)?;
+            let mlp = session(&env, &files.mlp_onnx, "mlp", threads)?;
             check_names(&unet, "unet", UNET_INPUT, &expected_unet_names(&files.card))?;
             let mlp_names: Vec<String> = MLP_OUTPUTS.iter().map(|s| s.to_string()).collect();
             check_names(&mlp, "mlp", MLP_INPUT, &mlp_names)?;
