@@ -143,6 +143,32 @@ class ResUNet3d(nn.Module):
         return self.head(x), encs
 
 
+class _InwardClamp(torch.autograd.Function):
+    """clamp(x, lo, hi) whose gradient also flows where x is outside [lo, hi], but only when a descent
+    step moves x back towards the range (a hard clamp has zero gradient there, so κ could never leave
+    a bound once it reached it)."""
+
+    @staticmethod
+    def forward(ctx, x, lo: float, hi: float):
+        ctx.save_for_backward(x)
+        ctx.lo, ctx.hi = lo, hi
+        return x.clamp(lo, hi)
+
+    @staticmethod
+    def backward(ctx, grad):
+        (x,) = ctx.saved_tensors
+        # Descent changes x by −grad: below lo it must increase (grad < 0), above hi decrease (grad > 0).
+        keep = ((x >= ctx.lo) & (x <= ctx.hi)) | ((x < ctx.lo) & (grad < 0)) | ((x > ctx.hi) & (grad > 0))
+        return grad * keep, None, None
+
+
+def kappa_clamp(x: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
+    """κ clamp: plain ``clamp`` without gradients (inference, export), :class:`_InwardClamp` in training."""
+    if torch.is_grad_enabled() and x.requires_grad:
+        return _InwardClamp.apply(x, lo, hi)
+    return torch.clamp(x, min=lo, max=hi)
+
+
 class GraspMlp(nn.Module):
     """MLP head: features [N, F] → baseline, κ, width, quality prior, collision priors."""
 
@@ -170,7 +196,7 @@ class GraspMlp(nn.Module):
         width = self.max_opening_m * torch.sigmoid(raw[:, 4])
         if self.kappa_learned:
             kappa_inv = F.softplus(raw[:, 3])
-            kappa = torch.clamp(self.kappa0 / (kappa_inv + self.kappa_eps), min=self.kappa0, max=4.0 * self.kappa0)
+            kappa = kappa_clamp(self.kappa0 / (kappa_inv + self.kappa_eps), self.kappa0, 4.0 * self.kappa0)
         else:
             kappa = torch.full_like(width, self.kappa0)
         return {
