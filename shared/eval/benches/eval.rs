@@ -1,10 +1,14 @@
 //! `cargo bench -p psgrasp-eval`: milliseconds per grasp attempt (physics only) on a lone box and
 //! in settled clutter, and seconds per clearing round with the analytic detector.
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use psgrasp_eval::{execute_grasp, ExecutionConfig, GraspCommand};
+use psgrasp_datagen::Difficulty;
+use psgrasp_eval::{
+    execute_grasp, run_scene, DetectorSpec, ExecutionConfig, GraspCommand, ProtocolConfig,
+};
 use psgrasp_geometry::{BinModel, GripperModel};
 use psgrasp_sim::{
-    MeshLibrary, ObjectKind, ObjectSpec, Part, Primitive, Scene, SceneDescription, SceneObject,
+    MeshLibrary, ObjectKind, ObjectLibrary, ObjectSpec, Part, Primitive, Scene, SceneDescription,
+    SceneObject,
 };
 use std::time::Instant;
 
@@ -88,6 +92,41 @@ fn main() {
             &scene,
             &cmds,
             1,
+        );
+    }
+
+    println!("\n## Clearing rounds (analytic detector, release build, one thread)\n");
+    println!("| level | scenes | objects | attempts | s/scene | ms/attempt (all) | detection ms/frame | physics ms/attempt |");
+    println!("|---|---|---|---|---|---|---|---|");
+    let library = ObjectLibrary::procedural();
+    let meshes = MeshLibrary::default();
+    let proto = ProtocolConfig::default();
+    let detector = DetectorSpec::analytic();
+    for (level, scenes) in [
+        (Difficulty::Easy, 3u64),
+        (Difficulty::Medium, 2),
+        (Difficulty::Challenging, 1),
+    ] {
+        let mut backend = detector.build(&proto).expect("backend");
+        let (mut objects, mut attempts, mut det_ms, mut frames, mut phys_ms) =
+            (0usize, 0usize, 0.0, 0usize, 0.0);
+        let t = Instant::now();
+        for i in 0..scenes {
+            let r = run_scene(level, 0, i, &library, &meshes, backend.as_mut(), &proto)
+                .expect("scene runs");
+            objects += r.summary.objects;
+            attempts += r.attempts.len();
+            frames += r.summary.frames as usize;
+            det_ms += r.summary.detection_ms;
+            phys_ms += r.attempts.iter().map(|a| a.execution_ms).sum::<f64>();
+        }
+        let s = t.elapsed().as_secs_f64();
+        println!(
+            "| {level:?} | {scenes} | {objects} | {attempts} | {:.1} | {:.0} | {:.0} | {:.0} |",
+            s / scenes as f64,
+            1e3 * s / attempts.max(1) as f64,
+            det_ms / frames.max(1) as f64,
+            phys_ms / attempts.max(1) as f64,
         );
     }
 }

@@ -135,7 +135,7 @@ impl BarChart {
             .max()
             .unwrap_or(1)
             .max(1) as i64;
-        let bar_w = 26i64;
+        let bar_w = 40i64;
         let group_gap = 40i64;
         let left = 70i64;
         let longest_label = self
@@ -379,10 +379,10 @@ mod tests {
             }],
         };
         let img = chart.render();
-        // Geometry of `render`: left 70, group width 92 (2 bars of 26 + 40), plot 200 px high
+        // Geometry of `render`: left 70, group width 144 (2 bars of 40 + a 64 px label), plot 200 px high
         // ending at y = 10 + 50 + 200.
-        let x_first = 70 + 20 + 13;
-        let x_second = x_first + 26;
+        let x_first = 70 + 32 + 20;
+        let x_second = x_first + 40;
         let y0 = 10 + 50 + 200;
         let column = |x: u32| {
             (0..img.height)

@@ -262,7 +262,7 @@ impl Summary {
             let _ = write!(head, " {} SR | {} CR |", level_name(*l), level_name(*l));
             rule.push_str("---|---|");
         }
-        let _ = writeln!(s, "{head} scenes per level |\n{rule}---|");
+        let _ = writeln!(s, "{head} scenes per level (all seeds) |\n{rule}---|");
         for (name, label) in &self.detectors {
             let mut row = format!("| {label} |");
             let mut counts = Vec::new();
