@@ -12,11 +12,16 @@
 use nalgebra::Point3;
 use psgrasp_fusion::{fuse_normal_grid, FusionConfig, NormalGrid};
 use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, GripperModel, Workspace};
-use psgrasp_inference::{
-    InferenceBackend, LearnedBackend, LearnedConfig, ModelCard, RuntimeKind, StageTimings,
+use psgrasp_inference::learned::{
+    decode, load_model_dir, sampling, ClassProbabilities, Decoder, FeaturePyramid, HeadOutputs,
 };
+use psgrasp_inference::{
+    InferenceBackend, LearnedBackend, LearnedConfig, LearnedModel, ModelCard, RuntimeKind,
+    StageTimings,
+};
+use std::hint::black_box;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 fn model_dir() -> PathBuf {
     let arg = std::env::args().skip(1).find(|a| !a.starts_with('-'));
@@ -83,6 +88,10 @@ fn main() {
         .filter_map(|t| t.trim().parse().ok())
         .collect();
     let grid = fused_grid(workspace);
+    if std::env::var_os("PSGRASP_BENCH_BREAKDOWN_ONLY").is_some() {
+        breakdown(&dir, workspace, &grid, iters.max(10));
+        return;
+    }
     println!(
         "learned backend: model {} ({}, U-Net channels {:?}, MLP hidden {:?}) at {}, grid {:?} × {} mm, \
          {} band voxels; {iters} runs per row after a warm-up; milliseconds, mean (min)\n",
@@ -145,4 +154,93 @@ fn main() {
             }
         }
     }
+    breakdown(&dir, workspace, &grid, iters.max(10));
+}
+
+/// Mean and min milliseconds of `f` over `iters` runs after one warm-up.
+fn time_ms(iters: usize, mut f: impl FnMut()) -> String {
+    f();
+    let v: Vec<f64> = (0..iters)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    let min = v.iter().cloned().fold(f64::INFINITY, f64::min);
+    format!("{mean:.2} ({min:.2})")
+}
+
+/// The sampling and decoding steps one by one (single thread), 4096 contact voxels.
+fn breakdown(dir: &Path, workspace: Workspace, grid: &NormalGrid, iters: usize) {
+    let files = load_model_dir(dir, &workspace, &GripperModel::default()).expect("model");
+    let mut model = LearnedModel::new(&files, RuntimeKind::Tract, None, 1).expect("tract");
+    let unet = model.run_unet(&grid.normals).expect("unet");
+    let n = workspace.voxel_count();
+    let mut probs = ClassProbabilities::default();
+    let mut voxels = Vec::new();
+    let mut points = Vec::new();
+    let mut features = Vec::new();
+    let mut head = HeadOutputs::default();
+    let mut out = Vec::new();
+    println!("\n| step (tract outputs, 4096 contact voxels, 32768 points) | ms mean (min) |");
+    println!("|---|---|");
+    let t = time_ms(iters, || {
+        probs.compute(unet.label_logits.data(), n).expect("softmax")
+    });
+    println!("| softmax (P_contact, P_gripper of {n} voxels) | {t} |");
+    let t = time_ms(iters, || {
+        sampling::select_contact_voxels(&probs.contact, 0.0, 4096, &mut voxels);
+        sampling::contact_points(&workspace, &voxels, &mut points);
+    });
+    println!("| contact selection + sub-voxel points | {t} |");
+    let levels = model.levels(&unet).expect("levels");
+    let t = time_ms(iters, || {
+        sampling::sample_features(&levels, &points, &mut features)
+    });
+    println!(
+        "| trilinear features, channel-major gathers (F = {}) | {t} |",
+        features.len() / points.len().max(1)
+    );
+    let mut pyramid = FeaturePyramid::default();
+    let t = time_ms(iters, || pyramid.fill(&levels));
+    println!("| channel-last copy of the encoder levels | {t} |");
+    let t = time_ms(iters, || pyramid.sample(&points, &mut features));
+    println!("| trilinear features, channel-last rows | {t} |");
+    let pool = rayon_pool(2);
+    let t = time_ms(iters, || {
+        pyramid.fill_in(&levels, &pool);
+        pyramid.sample_in(&points, &mut features, &pool);
+    });
+    println!("| channel-last copy + features, 2 threads | {t} |");
+    model.run_mlp(&features, 4096, &mut head).expect("mlp");
+    let settings = model.decode_settings();
+    let t = time_ms(iters, || {
+        out.clear();
+        decode::decode(&probs, &workspace, &points, &head, &settings, &mut out).expect("decode");
+        black_box(&out);
+    });
+    println!("| decoding (19 probability samples per point) | {t} |");
+    let t = time_ms(iters, || {
+        let decoder = Decoder::new(&probs, &workspace, &points, &head, &settings).expect("decoder");
+        out.clear();
+        pool.install(|| {
+            use rayon::prelude::*;
+            out.par_extend(
+                (0..decoder.len())
+                    .into_par_iter()
+                    .map(|i| decoder.config(i)),
+            )
+        });
+        black_box(&out);
+    });
+    println!("| decoding, 2 threads | {t} |");
+}
+
+fn rayon_pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("thread pool")
 }

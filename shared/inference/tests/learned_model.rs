@@ -308,8 +308,26 @@ fn backend_end_to_end(kind: RuntimeKind, ort_library: Option<PathBuf>) {
         assert!(c.collision_scores.iter().all(|s| (0.0..=1.0).contains(s)));
         assert_eq!(c.collision_scores.len(), N_APPROACHES);
     }
-    // Same grid → same output.
+    // Same grid → same output, and the thread count changes nothing.
     assert_eq!(backend.infer(&grid.view(), 5).unwrap(), configs);
+    let mut threaded = LearnedBackend::new(
+        LearnedConfig {
+            threads: 2,
+            ..cfg.clone()
+        },
+        &workspace(),
+        gripper(),
+    )
+    .unwrap();
+    let threaded_configs = threaded.infer(&grid.view(), 0).unwrap();
+    assert_eq!(threaded_configs.len(), configs.len());
+    for (a, b) in threaded_configs.iter().zip(&configs) {
+        assert_eq!(a.contact, b.contact);
+        assert!((a.quality - b.quality).abs() <= 1e-6);
+        for (x, y) in a.collision_scores.iter().zip(&b.collision_scores) {
+            assert!((x - y).abs() <= 1e-6);
+        }
+    }
 
     // A cap on contact voxels keeps the most probable ones.
     let capped_cfg = LearnedConfig {

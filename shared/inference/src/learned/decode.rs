@@ -131,32 +131,61 @@ fn approaches_with(rot: &[(f32, f32); N_APPROACHES], b: [f32; 3]) -> [[f32; 3]; 
     })
 }
 
-/// Decodes `head` at `points` into configurations appended to `out` (one per point, same order).
-///
-/// `probabilities` are the level-0 class probabilities over `workspace`.
-pub fn decode(
-    probabilities: &ClassProbabilities,
-    workspace: &Workspace,
-    points: &[[f32; 3]],
-    head: &HeadOutputs,
-    settings: &DecodeSettings,
-    out: &mut Vec<GraspConfiguration>,
-) -> Result<(), ModelError> {
-    head.check()?;
-    if head.len() != points.len() {
-        return Err(ModelError::GraphInterface {
-            graph: "mlp",
-            reason: format!("{} outputs for {} points", head.len(), points.len()),
-        });
+/// Decodes one frame's MLP outputs point by point (checked once, then infallible per point, so
+/// points can be decoded in any order or in parallel).
+#[derive(Debug, Clone, Copy)]
+pub struct Decoder<'a> {
+    contact: GridLevel<'a>,
+    gripper: GridLevel<'a>,
+    points: &'a [[f32; 3]],
+    head: &'a HeadOutputs,
+    rotations: [(f32, f32); N_APPROACHES],
+    settings: DecodeSettings,
+}
+
+impl<'a> Decoder<'a> {
+    /// Checks `head` (N rows, finite) against `points` and the probability grids against
+    /// `workspace`.
+    pub fn new(
+        probabilities: &'a ClassProbabilities,
+        workspace: &Workspace,
+        points: &'a [[f32; 3]],
+        head: &'a HeadOutputs,
+        settings: &DecodeSettings,
+    ) -> Result<Self, ModelError> {
+        head.check()?;
+        if head.len() != points.len() {
+            return Err(ModelError::GraphInterface {
+                graph: "mlp",
+                reason: format!("{} outputs for {} points", head.len(), points.len()),
+            });
+        }
+        let dims = workspace.dims.map(|d| d as usize);
+        let s = workspace.voxel_size_m;
+        Ok(Self {
+            contact: GridLevel::new(&probabilities.contact, 1, dims, s)?,
+            gripper: GridLevel::new(&probabilities.gripper, 1, dims, s)?,
+            points,
+            head,
+            rotations: approach_rotations(),
+            settings: *settings,
+        })
     }
-    let dims = workspace.dims.map(|d| d as usize);
-    let s = workspace.voxel_size_m;
-    let contact = GridLevel::new(&probabilities.contact, 1, dims, s)?;
-    let gripper = GridLevel::new(&probabilities.gripper, 1, dims, s)?;
-    let rot = approach_rotations();
-    let d = settings.approach_depth_m;
-    out.reserve(points.len());
-    for (n, c) in points.iter().enumerate() {
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// True when there are no points.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The configuration of point `n` (`n < len()`).
+    pub fn config(&self, n: usize) -> GraspConfiguration {
+        let head = self.head;
+        let c = self.points[n];
         let b = [
             head.baseline[3 * n],
             head.baseline[3 * n + 1],
@@ -168,14 +197,17 @@ pub fn decode(
             c[1] + 0.5 * w * b[1],
             c[2] + 0.5 * w * b[2],
         ];
-        let approaches = approaches_with(&rot, b);
+        let d = self.settings.approach_depth_m;
+        let approaches = approaches_with(&self.rotations, b);
         let prior = &head.collision_prior[N_APPROACHES * n..N_APPROACHES * (n + 1)];
-        let mut scores = [0f32; N_APPROACHES];
-        for ((score, a), &p) in scores.iter_mut().zip(approaches.iter()).zip(prior) {
-            let t = [tcp[0] - a[0] * d, tcp[1] - a[1] * d, tcp[2] - a[2] * d];
-            *score = gripper.sample(0, t) * p;
+        let xs: [f32; N_APPROACHES] = std::array::from_fn(|i| tcp[0] - approaches[i][0] * d);
+        let ys: [f32; N_APPROACHES] = std::array::from_fn(|i| tcp[1] - approaches[i][1] * d);
+        let zs: [f32; N_APPROACHES] = std::array::from_fn(|i| tcp[2] - approaches[i][2] * d);
+        let mut scores = self.gripper.sample_points(&xs, &ys, &zs);
+        for (score, &p) in scores.iter_mut().zip(prior) {
+            *score *= p;
         }
-        if settings.single_approach {
+        if self.settings.single_approach {
             let best = (0..N_APPROACHES).fold(
                 0,
                 |best, i| {
@@ -192,15 +224,31 @@ pub fn decode(
                 }
             }
         }
-        out.push(GraspConfiguration {
-            contact: Point3::from(*c),
+        GraspConfiguration {
+            contact: Point3::from(c),
             baseline: Vector3::from(b),
             collision_scores: scores,
             width: w,
-            quality: contact.sample(0, *c) * head.quality_prior[n],
+            quality: self.contact.sample(0, c) * head.quality_prior[n],
             kappa: head.kappa[n],
-        });
+        }
     }
+}
+
+/// Decodes `head` at `points` into configurations appended to `out` (one per point, same order).
+///
+/// `probabilities` are the level-0 class probabilities over `workspace`.
+pub fn decode(
+    probabilities: &ClassProbabilities,
+    workspace: &Workspace,
+    points: &[[f32; 3]],
+    head: &HeadOutputs,
+    settings: &DecodeSettings,
+    out: &mut Vec<GraspConfiguration>,
+) -> Result<(), ModelError> {
+    let decoder = Decoder::new(probabilities, workspace, points, head, settings)?;
+    out.reserve(points.len());
+    out.extend((0..decoder.len()).map(|n| decoder.config(n)));
     Ok(())
 }
 

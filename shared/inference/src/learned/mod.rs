@@ -24,11 +24,11 @@ pub mod runtime;
 pub mod sampling;
 
 pub use card::{load_model_dir, ModelCard, ModelError, ModelFiles, ModelVariant};
-pub use decode::{DecodeSettings, HeadOutputs};
+pub use decode::{DecodeSettings, Decoder, HeadOutputs};
 #[cfg(feature = "ort")]
 pub use runtime::OrtRuntime;
 pub use runtime::{GraphRuntime, OutputTensor, RuntimeKind, TractRuntime, UnetOutputs};
-pub use sampling::{ClassProbabilities, GridLevel};
+pub use sampling::{ClassProbabilities, FeaturePyramid, GridLevel};
 
 use crate::{validate_grid, validate_gripper, InferenceBackend, InferenceError};
 use psgrasp_fusion::NormalGridView;
@@ -262,9 +262,12 @@ pub struct LearnedBackend {
     cfg: LearnedConfig,
     name: String,
     contact_probability: f32,
+    /// Runs sampling and decoding on `threads` threads (None: the calling thread only).
+    pool: Option<rayon::ThreadPool>,
     probabilities: ClassProbabilities,
     voxels: Vec<u32>,
     points: Vec<[f32; 3]>,
+    pyramid: FeaturePyramid,
     features: Vec<f32>,
     head: HeadOutputs,
     timings: StageTimings,
@@ -313,7 +316,23 @@ impl LearnedBackend {
         let contact_probability = cfg
             .contact_probability
             .unwrap_or(files.card.thresholds.contact_probability);
+        let threads = runtime::resolve_threads(cfg.threads);
+        let pool = if threads > 1 {
+            Some(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .thread_name(|i| format!("psgrasp-learned-{i}"))
+                    .build()
+                    .map_err(|e| ModelError::RuntimeUnavailable {
+                        runtime: "rayon",
+                        reason: format!("cannot start {threads} threads: {e}"),
+                    })?,
+            )
+        } else {
+            None
+        };
         Ok(Self {
+            pool,
             name: format!("learned-{}", model.runtime_name()),
             model,
             cfg,
@@ -321,6 +340,7 @@ impl LearnedBackend {
             probabilities: ClassProbabilities::default(),
             voxels: Vec::new(),
             points: Vec::new(),
+            pyramid: FeaturePyramid::default(),
             features: Vec::new(),
             head: HeadOutputs::default(),
             timings: StageTimings::default(),
@@ -386,7 +406,17 @@ impl InferenceBackend for LearnedBackend {
         );
         sampling::contact_points(&workspace, &self.voxels, &mut self.points);
         let levels = self.model.levels(&unet)?;
-        sampling::sample_features(&levels, &self.points, &mut self.features);
+        match &self.pool {
+            Some(pool) => {
+                self.pyramid.fill_in(&levels, pool);
+                self.pyramid
+                    .sample_in(&self.points, &mut self.features, pool);
+            }
+            None => {
+                self.pyramid.fill(&levels);
+                self.pyramid.sample(&self.points, &mut self.features);
+            }
+        }
         drop(levels);
         drop(unet);
         t.sampling = t0.elapsed();
@@ -397,15 +427,25 @@ impl InferenceBackend for LearnedBackend {
         t.mlp = t0.elapsed();
 
         let t0 = Instant::now();
-        let mut out = Vec::with_capacity(self.points.len());
-        decode::decode(
+        let decoder = Decoder::new(
             &self.probabilities,
             &workspace,
             &self.points,
             &self.head,
             &self.model.decode_settings(),
-            &mut out,
         )?;
+        let mut out = Vec::with_capacity(decoder.len());
+        match &self.pool {
+            Some(pool) => pool.install(|| {
+                use rayon::prelude::*;
+                out.par_extend(
+                    (0..decoder.len())
+                        .into_par_iter()
+                        .map(|n| decoder.config(n)),
+                )
+            }),
+            None => out.extend((0..decoder.len()).map(|n| decoder.config(n))),
+        }
         t.decoding = t0.elapsed();
         t.total = start.elapsed();
         t.contact_voxels = self.voxels.len();

@@ -83,33 +83,52 @@ impl<'a> GridLevel<'a> {
     /// convention. Corner order: x major, then y, then z; low before high.
     #[inline(always)]
     pub fn corners(&self, p: [f32; 3]) -> ([usize; 8], [f32; 8]) {
-        let mut lo = [0usize; 3];
-        let mut hi = [0usize; 3];
-        let mut f = [0f32; 3];
-        for a in 0..3 {
-            let max = (self.dims[a] - 1) as f32;
-            // `max(0.0)` first: a NaN coordinate becomes 0 instead of poisoning the index.
-            let u = (p[a] * self.inv_voxel_size - 0.5).max(0.0).min(max);
-            let i0 = (u as usize).min(self.dims[a].saturating_sub(2));
-            lo[a] = i0;
-            hi[a] = (i0 + 1).min(self.dims[a] - 1);
-            f[a] = u - i0 as f32;
+        trilinear_corners(p, self.dims, self.inv_voxel_size)
+    }
+
+    /// Trilinear values of channel 0 at `N` points given as coordinate arrays (structure of
+    /// arrays, so that the index and weight arithmetic vectorises; only the 8 loads per point are
+    /// scalar). Same values as [`GridLevel::sample`].
+    #[inline]
+    pub fn sample_points<const N: usize>(
+        &self,
+        xs: &[f32; N],
+        ys: &[f32; N],
+        zs: &[f32; N],
+    ) -> [f32; N] {
+        let d = self.dims;
+        let strides = [d[1] * d[2], d[2], 1];
+        let mut base = [0i32; N];
+        let mut fr = [[0f32; N]; 3];
+        for (a, coords) in [xs, ys, zs].into_iter().enumerate() {
+            let max = (d[a] - 1) as f32;
+            let hi = d[a].saturating_sub(2) as i32;
+            let stride = strides[a] as i32;
+            for i in 0..N {
+                let u = (coords[i] * self.inv_voxel_size - 0.5).max(0.0).min(max);
+                let i0 = (u as i32).min(hi);
+                fr[a][i] = u - i0 as f32;
+                base[i] += i0 * stride;
+            }
         }
-        let (sx, sy) = (self.dims[1] * self.dims[2], self.dims[2]);
-        let xs = [lo[0] * sx, hi[0] * sx];
-        let ys = [lo[1] * sy, hi[1] * sy];
-        let zs = [lo[2], hi[2]];
-        let wx = [1.0 - f[0], f[0]];
-        let wy = [1.0 - f[1], f[1]];
-        let wz = [1.0 - f[2], f[2]];
-        let mut off = [0usize; 8];
-        let mut w = [0f32; 8];
-        for (n, (o, wt)) in off.iter_mut().zip(w.iter_mut()).enumerate() {
-            let (a, b, c) = (n >> 2, (n >> 1) & 1, n & 1);
-            *o = xs[a] + ys[b] + zs[c];
-            *wt = wx[a] * wy[b] * wz[c];
+        let step: [usize; 3] = std::array::from_fn(|a| if d[a] > 1 { strides[a] } else { 0 });
+        let plane = &self.data[..self.plane_len()];
+        let mut out = [0f32; N];
+        for i in 0..N {
+            let b = base[i] as usize;
+            let (fx, fy, fz) = (fr[0][i], fr[1][i], fr[2][i]);
+            let v = |dx: usize, dy: usize, dz: usize| {
+                plane[b + dx * step[0] + dy * step[1] + dz * step[2]]
+            };
+            let c00 = v(0, 0, 0) + fz * (v(0, 0, 1) - v(0, 0, 0));
+            let c01 = v(0, 1, 0) + fz * (v(0, 1, 1) - v(0, 1, 0));
+            let c10 = v(1, 0, 0) + fz * (v(1, 0, 1) - v(1, 0, 0));
+            let c11 = v(1, 1, 0) + fz * (v(1, 1, 1) - v(1, 1, 0));
+            let c0 = c00 + fy * (c01 - c00);
+            let c1 = c10 + fy * (c11 - c10);
+            out[i] = c0 + fx * (c1 - c0);
         }
-        (off, w)
+        out
     }
 
     /// Trilinear value of channel `c` at `p` (clamped convention). `c` must be < channels.
@@ -123,8 +142,43 @@ impl<'a> GridLevel<'a> {
     }
 }
 
+/// The 8 corner voxel offsets (linear, one channel) and trilinear weights of `p` on a grid of
+/// `dims` voxels with `1 / voxel size = inv_voxel_size`, clamped convention.
+#[inline(always)]
+fn trilinear_corners(p: [f32; 3], dims: [usize; 3], inv_voxel_size: f32) -> ([usize; 8], [f32; 8]) {
+    let strides = [dims[1] * dims[2], dims[2], 1];
+    let mut base = 0;
+    let mut step = [0usize; 3];
+    let mut f = [0f32; 3];
+    for a in 0..3 {
+        let max = (dims[a] - 1) as f32;
+        // `max(0.0)` first: a NaN coordinate becomes 0 instead of poisoning the index.
+        let u = (p[a] * inv_voxel_size - 0.5).max(0.0).min(max);
+        // The low corner is at most dims − 2, so the high corner (low + 1) is always inside;
+        // an axis of one voxel uses that voxel twice.
+        let i0 = (u as usize).min(dims[a].saturating_sub(2));
+        base += i0 * strides[a];
+        step[a] = if dims[a] > 1 { strides[a] } else { 0 };
+        f[a] = u - i0 as f32;
+    }
+    let wx = [1.0 - f[0], f[0]];
+    let wy = [1.0 - f[1], f[1]];
+    let wz = [1.0 - f[2], f[2]];
+    let mut off = [0usize; 8];
+    let mut w = [0f32; 8];
+    for (n, (o, wt)) in off.iter_mut().zip(w.iter_mut()).enumerate() {
+        let (a, b, c) = (n >> 2, (n >> 1) & 1, n & 1);
+        *o = base + a * step[0] + b * step[1] + c * step[2];
+        *wt = wx[a] * wy[b] * wz[c];
+    }
+    (off, w)
+}
+
 /// Samples every level at every point and concatenates the levels: `out` becomes the row-major
 /// `[points.len(), Σ C_l]` feature matrix (resized; its allocation is reused).
+///
+/// This reads the channel-major grids directly (8 gathers per channel); [`FeaturePyramid`] is the
+/// faster path for many points.
 pub fn sample_features(levels: &[GridLevel<'_>], points: &[[f32; 3]], out: &mut Vec<f32>) {
     let f: usize = levels.iter().map(|l| l.channels).sum();
     out.clear();
@@ -148,6 +202,138 @@ pub fn sample_features(levels: &[GridLevel<'_>], points: &[[f32; 3]], out: &mut 
             }
         }
         level_offset += c_l;
+    }
+}
+
+/// One level stored channel-last (`[X, Y, Z, C]`): the C features of a voxel are contiguous.
+#[derive(Debug, Clone, Default)]
+struct ChannelLastLevel {
+    data: Vec<f32>,
+    channels: usize,
+    dims: [usize; 3],
+    inv_voxel_size: f32,
+}
+
+/// The encoder levels copied channel-last, so that trilinear feature sampling reads 8 contiguous
+/// rows of C values per point and level (vectorised) instead of 8·C scattered values. Buffers are
+/// reused from frame to frame.
+#[derive(Debug, Clone, Default)]
+pub struct FeaturePyramid {
+    levels: Vec<ChannelLastLevel>,
+}
+
+/// Voxels per block of the channel-last transposition (keeps a block's C planes in L1).
+const TRANSPOSE_BLOCK: usize = 256;
+
+impl FeaturePyramid {
+    /// Copies `levels` channel-last into `self` (single thread).
+    pub fn fill(&mut self, levels: &[GridLevel<'_>]) {
+        self.fill_with(levels, |data, level| transpose_blocks(level, data, 0));
+    }
+
+    /// Copies `levels` channel-last, running the transposition on `pool`.
+    pub fn fill_in(&mut self, levels: &[GridLevel<'_>], pool: &rayon::ThreadPool) {
+        use rayon::prelude::*;
+        self.fill_with(levels, |data, level| {
+            let rows = TRANSPOSE_BLOCK * level.channels;
+            pool.install(|| {
+                data.par_chunks_mut(rows)
+                    .enumerate()
+                    .for_each(|(b, chunk)| transpose_blocks(level, chunk, b * TRANSPOSE_BLOCK));
+            })
+        });
+    }
+
+    fn fill_with(
+        &mut self,
+        levels: &[GridLevel<'_>],
+        mut transpose: impl FnMut(&mut [f32], &GridLevel<'_>),
+    ) {
+        self.levels
+            .resize_with(levels.len(), ChannelLastLevel::default);
+        for (dst, src) in self.levels.iter_mut().zip(levels) {
+            dst.channels = src.channels;
+            dst.dims = src.dims;
+            dst.inv_voxel_size = src.inv_voxel_size;
+            dst.data.clear();
+            dst.data.resize(src.data.len(), 0.0);
+            transpose(&mut dst.data, src);
+        }
+    }
+
+    /// Feature size F = Σ C_l.
+    pub fn feature_dim(&self) -> usize {
+        self.levels.iter().map(|l| l.channels).sum()
+    }
+
+    /// Features of `points` into `out` (`[points.len(), F]`, resized; allocation reused).
+    pub fn sample(&self, points: &[[f32; 3]], out: &mut Vec<f32>) {
+        out.clear();
+        out.resize(points.len() * self.feature_dim(), 0.0);
+        self.sample_into(points, out);
+    }
+
+    /// Features of `points` into `out` on `pool` (same values as [`FeaturePyramid::sample`]).
+    pub fn sample_in(&self, points: &[[f32; 3]], out: &mut Vec<f32>, pool: &rayon::ThreadPool) {
+        use rayon::prelude::*;
+        const CHUNK: usize = 512;
+        let f = self.feature_dim();
+        out.clear();
+        out.resize(points.len() * f, 0.0);
+        if f == 0 {
+            return;
+        }
+        pool.install(|| {
+            out.par_chunks_mut(CHUNK * f)
+                .zip(points.par_chunks(CHUNK))
+                .for_each(|(o, p)| self.sample_into(p, o));
+        });
+    }
+
+    /// Features of `points` into `out`, which must hold `points.len() · F` values.
+    fn sample_into(&self, points: &[[f32; 3]], out: &mut [f32]) {
+        let f = self.feature_dim();
+        if f == 0 {
+            return;
+        }
+        for (p, row) in points.iter().zip(out.chunks_exact_mut(f)) {
+            let mut start = 0;
+            for level in &self.levels {
+                let c = level.channels;
+                let (off, w) = trilinear_corners(*p, level.dims, level.inv_voxel_size);
+                let dst = &mut row[start..start + c];
+                let r: [&[f32]; 8] =
+                    std::array::from_fn(|k| &level.data[off[k] * c..off[k] * c + c]);
+                for (i, d) in dst.iter_mut().enumerate() {
+                    *d = w[0] * r[0][i]
+                        + w[1] * r[1][i]
+                        + w[2] * r[2][i]
+                        + w[3] * r[3][i]
+                        + w[4] * r[4][i]
+                        + w[5] * r[5][i]
+                        + w[6] * r[6][i]
+                        + w[7] * r[7][i];
+                }
+                start += c;
+            }
+        }
+    }
+}
+
+/// Writes voxels `first..` of `level` channel-last into `dst` (whole voxels, `dst.len() / C` of
+/// them), block by block.
+fn transpose_blocks(level: &GridLevel<'_>, dst: &mut [f32], first: usize) {
+    let c = level.channels;
+    let n = level.plane_len();
+    for (b, block) in dst.chunks_mut(TRANSPOSE_BLOCK * c).enumerate() {
+        let v0 = first + b * TRANSPOSE_BLOCK;
+        let len = block.len() / c;
+        for ch in 0..c {
+            let src = &level.data[ch * n + v0..ch * n + v0 + len];
+            for (v, &x) in src.iter().enumerate() {
+                block[v * c + ch] = x;
+            }
+        }
     }
 }
 
@@ -179,22 +365,61 @@ impl ClassProbabilities {
         self.contact.resize(voxels, 0.0);
         self.gripper.clear();
         self.gripper.resize(voxels, 0.0);
-        for i in 0..voxels {
-            let (a, b, c) = (l0[i], l1[i], l2[i]);
-            if !(a.is_finite() && b.is_finite() && c.is_finite()) {
-                return Err(ModelError::NonFiniteOutput {
-                    output: "label_logits",
-                    index: i,
-                });
-            }
+        // Branch-free so that it vectorises; non-finite logits are detected by an OR reduction.
+        let mut bad = false;
+        for ((((pc, pg), &a), &b), &c) in self
+            .contact
+            .iter_mut()
+            .zip(self.gripper.iter_mut())
+            .zip(l0)
+            .zip(l1)
+            .zip(l2)
+        {
+            bad |= !(a.is_finite() & b.is_finite() & c.is_finite());
             let m = a.max(b).max(c);
-            let (ea, eb, ec) = ((a - m).exp(), (b - m).exp(), (c - m).exp());
+            let (ea, eb, ec) = (
+                exp_nonpositive(a - m),
+                exp_nonpositive(b - m),
+                exp_nonpositive(c - m),
+            );
             let inv = 1.0 / (ea + eb + ec);
-            self.contact[i] = eb * inv;
-            self.gripper[i] = ec * inv;
+            *pc = eb * inv;
+            *pg = ec * inv;
+        }
+        if bad {
+            let index = (0..voxels)
+                .find(|&i| !(l0[i].is_finite() && l1[i].is_finite() && l2[i].is_finite()))
+                .unwrap_or(0);
+            return Err(ModelError::NonFiniteOutput {
+                output: "label_logits",
+                index,
+            });
         }
         Ok(())
     }
+}
+
+/// `e^x` for `x ≤ 0` (Cephes `expf` polynomial, relative error below 3e-7; arguments below −87,
+/// and NaN, give `e^−87`). Branch-free so that loops over it vectorise.
+#[inline(always)]
+pub fn exp_nonpositive(x: f32) -> f32 {
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    // Adding and subtracting 1.5·2^23 rounds to the nearest integer in f32 arithmetic.
+    const ROUND: f32 = 12_582_912.0;
+    // Not `clamp`: it passes NaN through, `max` turns it into −87.
+    #[allow(clippy::manual_clamp)]
+    let x = x.max(-87.0).min(0.0);
+    let n = (x * std::f32::consts::LOG2_E + ROUND) - ROUND;
+    let r = x - n * LN2_HI - n * LN2_LO;
+    let mut p = 1.987_569_1e-4_f32;
+    p = p * r + 1.398_199_9e-3;
+    p = p * r + 8.333_452e-3;
+    p = p * r + 4.166_579_6e-2;
+    p = p * r + 1.666_666_5e-1;
+    p = p * r + 0.5;
+    let e_r = p * r * r + r + 1.0;
+    e_r * f32::from_bits(((n as i32 + 127) as u32) << 23)
 }
 
 /// Contact voxels: linear indices with `P_contact ≥ threshold`, ascending. If more than
@@ -351,6 +576,89 @@ mod tests {
                 out[3 * n + 2]
             );
         }
+    }
+
+    #[test]
+    fn feature_pyramid_matches_the_direct_sampler() {
+        let w0 = ws([8, 6, 4], 0.01);
+        let w1 = ws([4, 3, 2], 0.02);
+        let g0: Vec<f32> = (0..3 * w0.voxel_count())
+            .map(|i| ((i * 7919) % 101) as f32 * 0.1)
+            .collect();
+        let g1: Vec<f32> = (0..5 * w1.voxel_count())
+            .map(|i| ((i * 104729) % 37) as f32 - 18.0)
+            .collect();
+        let levels = [
+            GridLevel::new(&g0, 3, [8, 6, 4], 0.01).unwrap(),
+            GridLevel::new(&g1, 5, [4, 3, 2], 0.02).unwrap(),
+        ];
+        // Points inside, on the border and outside the grid.
+        let points: Vec<[f32; 3]> = (0..300)
+            .map(|i| {
+                let t = i as f32;
+                [
+                    (t * 0.37).sin() * 0.05 + 0.04,
+                    (t * 0.11).cos() * 0.04 + 0.03,
+                    (t * 0.07) % 0.05 - 0.005,
+                ]
+            })
+            .collect();
+        let mut direct = Vec::new();
+        sample_features(&levels, &points, &mut direct);
+        let mut pyramid = FeaturePyramid::default();
+        pyramid.fill(&levels);
+        assert_eq!(pyramid.feature_dim(), 8);
+        let mut fast = vec![1.0; 3];
+        pyramid.sample(&points, &mut fast);
+        assert_eq!(fast.len(), direct.len());
+        for (a, b) in fast.iter().zip(&direct) {
+            assert!((a - b).abs() <= 1e-6 * b.abs().max(1.0), "{a} vs {b}");
+        }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let mut par = Vec::new();
+        let mut pyramid2 = FeaturePyramid::default();
+        pyramid2.fill_in(&levels, &pool);
+        pyramid2.sample_in(&points, &mut par, &pool);
+        assert_eq!(par, fast, "the thread pool must not change a single bit");
+    }
+
+    #[test]
+    fn batched_scalar_sampling_matches_single_points() {
+        let w = ws([7, 5, 1], 0.01);
+        let g: Vec<f32> = (0..w.voxel_count())
+            .map(|i| ((i * 31) % 17) as f32 * 0.05)
+            .collect();
+        let level = GridLevel::new(&g, 1, [7, 5, 1], 0.01).unwrap();
+        let pts: [[f32; 3]; 18] = std::array::from_fn(|i| {
+            let t = i as f32;
+            [t * 0.0043 - 0.01, (t * 0.7).sin() * 0.03 + 0.02, t * 0.001]
+        });
+        let xs = pts.map(|p| p[0]);
+        let ys = pts.map(|p| p[1]);
+        let zs = pts.map(|p| p[2]);
+        let batch = level.sample_points(&xs, &ys, &zs);
+        for (p, v) in pts.iter().zip(batch) {
+            assert!((level.sample(0, *p) - v).abs() < 1e-6, "{p:?}");
+        }
+    }
+
+    #[test]
+    fn fast_exp_is_accurate() {
+        for i in 0..=20_000 {
+            let x = -(i as f32) * 0.0045; // 0 .. −90
+            let e = (x as f64).exp();
+            let ours = exp_nonpositive(x) as f64;
+            if x >= -87.0 {
+                assert!(((ours - e) / e).abs() < 3e-7, "x = {x}: {ours} vs {e}");
+            } else {
+                assert!(ours <= 1.7e-38 && ours > 0.0);
+            }
+        }
+        assert_eq!(exp_nonpositive(0.0), 1.0);
+        assert!(exp_nonpositive(f32::NAN).is_finite());
     }
 
     #[test]
