@@ -1,7 +1,9 @@
 //! The learned backend: the two-stage network of the paper exported to ONNX.
 //!
-//! A model directory (see `docs` of the network contract) holds `card.json`, `unet.onnx` and
-//! `mlp.onnx`. Per frame:
+//! A model directory, written by `python -m psgrasp_training export`, holds `card.json` (the model
+//! card, [`card`]), `unet.onnx` and `mlp.onnx` (network interface contract version 1; optionally
+//! `reference.safetensors`, PyTorch's outputs on one scene, used by the agreement tests).
+//! Per frame:
 //!
 //! 1. **U-Net** ([`GraphRuntime::run_unet`]): the fused grid's normals `[1, 3, X, Y, Z]` →
 //!    label logits (empty / contact / gripper) and encoder feature grids `enc0..enc{L-1}`.
