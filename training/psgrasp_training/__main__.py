@@ -35,6 +35,12 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--out", required=True, type=Path, help="run directory")
     i.add_argument("--data", type=Path, default=None, help="dataset whose grid/gripper geometry to record")
 
+    v = sub.add_parser("evaluate", help="validation metrics of a run's checkpoint on its held-out scenes")
+    v.add_argument("--run", required=True, type=Path)
+    v.add_argument("--data", required=True, type=Path)
+    v.add_argument("--checkpoint", default="latest.pt", help="file name under RUN/checkpoints")
+    v.add_argument("--max-scenes", type=int, default=0)
+
     h = sub.add_parser("hitrate", help="measure the neighbour hit-rate of the contact-point rules on a dataset")
     h.add_argument("--config", required=True, type=Path)
     h.add_argument("--data", required=True, type=Path)
@@ -76,6 +82,10 @@ def main(argv: list[str] | None = None) -> int:
 
             init_run(load_config(args.config), args.out, args.data)
             print(f"wrote untrained run {args.out}")
+        elif args.command == "evaluate":
+            from .train import evaluate_run
+
+            evaluate_run(args.run, args.data, args.checkpoint, args.max_scenes)
         elif args.command == "hitrate":
             from .train import hitrate_report
 

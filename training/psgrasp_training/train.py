@@ -148,6 +148,9 @@ def training_step(net: GraspNet, scene: Scene, cfg: Config, g: torch.Generator, 
 def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device, max_scenes: int = 0) -> dict:
     """Validation metrics on the held-out scenes.
 
+    Also contact precision/recall of P_contact ≥ export.contact_probability (the inference rule) and
+    the mean κ at the points.
+
     IoU per class of the argmax label grid (summed over scenes); at training-rule points in true
     contact voxels (fixed seed per scene): baseline angle error = directed angle between ν and the
     closest neighbour baseline, width error = |w − that neighbour's width|, quality MAE of the
@@ -157,7 +160,8 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
     entries = ds.val_entries[: max_scenes] if max_scenes > 0 else ds.val_entries
     inter = torch.zeros(3, dtype=torch.float64)
     union = torch.zeros(3, dtype=torch.float64)
-    angles, width_err, q_err, hits, npts = [], [], [], 0, 0
+    tp = n_pred = n_true = 0
+    angles, width_err, q_err, kappas, hits, npts = [], [], [], [], 0, 0
     for entry in entries:
         scene = ds.scene(entry)
         dev_scene = scene_to(scene, device)
@@ -167,16 +171,22 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             p, t = pred == c, scene.labels == c
             inter[c] += (p & t).sum()
             union[c] += (p | t).sum()
+        probs = class_probabilities(logits)
+        p_c = probs[0, 1].cpu() >= cfg.export.contact_probability
+        t_c = scene.labels == 1
+        tp += int((p_c & t_c).sum())
+        n_pred += int(p_c.sum())
+        n_true += int(t_c.sum())
         g = torch.Generator().manual_seed(derive_seed(cfg.seed, 3, scene.index))
         points = contact_voxel_points(scene, cfg, g)
         if len(points) == 0:
             continue
         targets = grasp_targets(scene, GraspIndex(scene.contact, cfg.contacts.neighbour_radius_m), points, cfg)
-        probs = class_probabilities(logits)
         pts = points.to(device)
         out = {k: v.cpu() for k, v in net.mlp(sample_features(encs, pts, scene.extent_m)).items()}
         q = sample_grid(probs[:, 1:2], pts, scene.extent_m)[:, 0].cpu() * out["quality_prior"]
         q_err.append((q - targets.quality).abs())
+        kappas.append(out["kappa"])
         npts += len(points)
         h = targets.has.nonzero().reshape(-1)
         hits += len(h)
@@ -198,7 +208,9 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
 
     return {"scenes": len(entries), "iou": iou, "baseline_angle_error_deg": mean(angles),
             "width_error_mm": mean(width_err), "quality_mae": mean(q_err), "points": npts,
-            "hit_rate": hits / npts if npts else 0.0}
+            "hit_rate": hits / npts if npts else 0.0, "kappa_mean": mean(kappas),
+            "contact_precision": tp / n_pred if n_pred else 0.0, "contact_recall": tp / n_true if n_true else 0.0,
+            "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true}
 
 
 def _open_log(run_dir: Path, resume_step: int):
@@ -338,3 +350,17 @@ def hitrate_report(cfg: Config, data: Path, scenes: int, radii_m: list[float], l
             log(f"{rule:17s} r = {r * 1000:4.1f} mm: hit-rate {hit / max(tot, 1):.3f}, "
                 f"mean neighbours (hits) {nsum / max(hit, 1):.1f}, points {tot}")
     return results
+
+
+def evaluate_run(run_dir: Path, data: Path, checkpoint: str = "latest.pt", max_scenes: int = 0, log=print) -> dict:
+    """Validation metrics of a checkpoint (same split as its training run)."""
+    state = load_checkpoint(run_dir, checkpoint)
+    cfg: Config = state["config"]
+    device = setup_torch(cfg)
+    ds = SceneDataset(data, cfg)
+    net = GraspNet(cfg)
+    net.load_state_dict(state["model"])
+    net.to(device)
+    val = evaluate(net, ds, cfg, device, max_scenes)
+    log(f"validation of {run_dir} @ {state['step']}: {val}")
+    return val

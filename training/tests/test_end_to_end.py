@@ -35,6 +35,7 @@ def test_train_writes_log_checkpoints_and_model(trained_run):
     assert float(last["hit_rate"]) > 0.5 and float(last["points"]) > 0 and float(last["baseline"]) != 0
     assert (run / "checkpoints" / "step_0000005.pt").is_file() and load_checkpoint(run)["step"] == 10
     assert val["scenes"] == 1 and val["points"] > 0 and set(val["iou"]) == {"empty", "contact", "gripper"}
+    assert 0 <= val["contact_recall"] <= 1 and val["contact_voxels_true"] > 0 and val["kappa_mean"] >= 25
     card = json.loads((run / "model" / "card.json").read_text())
     assert card["training"]["iterations"] == 10 and card["grid"]["dims"] == [16, 16, 16]
     assert card["validation"]["baseline_angle_error_deg"] == pytest.approx(val["baseline_angle_error_deg"])
