@@ -348,13 +348,16 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
     let mut backend_cfg = cfg.inference.clone();
     // Contacts on the thin bin walls are never pickable: unless configured, restrict the
     // analytic backend's contacts to the bin interior.
-    let psgrasp_inference::BackendConfig::Analytic(a) = &mut backend_cfg;
-    if a.contact_region.is_none() {
-        a.contact_region = Some(psgrasp_inference::ContactRegion::inside_bin(
-            &cfg.bin, 0.005,
-        ));
+    if let psgrasp_inference::BackendConfig::Analytic(a) = &mut backend_cfg {
+        if a.contact_region.is_none() {
+            a.contact_region = Some(psgrasp_inference::ContactRegion::inside_bin(
+                &cfg.bin, 0.005,
+            ));
+        }
     }
-    let mut backend = psgrasp_inference::backend_from_config(&backend_cfg, cfg.gripper)?;
+    // A learned model whose card does not match the workspace or gripper fails here, at start-up.
+    let mut backend =
+        psgrasp_inference::backend_for_workspace(&backend_cfg, &cfg.workspace, cfg.gripper)?;
     let mut last_stats = Instant::now();
     tracing::info!(
         "inference[{}] ready (backend {})",
