@@ -13,3 +13,11 @@ echo "== cargo test -p psgrasp-inference --features ort (ONNX Runtime: $ORT_DYLI
 cargo test -p psgrasp-inference --features ort
 echo "== pytest training/tests"
 (cd training && OMP_NUM_THREADS=1 "$PSGRASP_PYTHON" -m pytest -q tests)
+echo "== end to end: psgrasp datagen → tiny training → ONNX export → Rust inference (tract + ort) against PyTorch"
+E2E="$(mktemp -d)"
+trap 'rm -rf "$E2E"' EXIT
+cargo run --quiet --bin psgrasp -- datagen --scenes 3 --quick --quiet --seed 11 --out "$E2E/data"
+(cd training && OMP_NUM_THREADS=1 "$PSGRASP_PYTHON" -m psgrasp_training train \
+    --config configs/tiny.toml --data "$E2E/data" --out "$E2E/run" > "$E2E/train.log" 2>&1) \
+    || { cat "$E2E/train.log"; exit 1; }
+PSGRASP_TEST_MODEL_DIR="$E2E/run/model" cargo test -p psgrasp-inference --features ort --test learned_model

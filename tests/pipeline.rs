@@ -7,6 +7,7 @@ use psgrasp::launcher::Supervisor;
 use psgrasp::sources::save_depth_npy;
 use psgrasp::stress::{run_frames, write_temp_config};
 use psgrasp_config::{PipelineConfig, PoseConfig, SourceKind};
+use psgrasp_inference::BackendConfig;
 use psgrasp_ipc::{DropPolicy, Stage, Stamp, StatusCode};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -19,7 +20,8 @@ fn bin_dir() -> PathBuf {
         .to_path_buf()
 }
 
-fn test_config(tag: &str) -> PipelineConfig {
+/// `config/default.toml` as shipped (the learned model in `models/default`), for test `tag`.
+fn shipped_config(tag: &str) -> PipelineConfig {
     let mut cfg = PipelineConfig::load(&PathBuf::from(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/config/default.toml"
@@ -28,6 +30,14 @@ fn test_config(tag: &str) -> PipelineConfig {
     cfg.pipeline.name = format!("t-{tag}-{}", std::process::id());
     cfg.camera.synthetic.objects = 4;
     cfg.camera.rate_hz = 0.0;
+    cfg
+}
+
+/// The shipped configuration with the analytic backend: the pipeline-mechanics tests need fast,
+/// model-independent inference.
+fn test_config(tag: &str) -> PipelineConfig {
+    let mut cfg = shipped_config(tag);
+    cfg.inference = BackendConfig::Analytic(Default::default());
     cfg
 }
 
@@ -54,14 +64,35 @@ fn four_processes_turn_every_frame_into_picks() {
     let mut cfg = test_config("e2e");
     cfg.camera.frames = 4;
     cfg.camera.synthetic.objects = 8;
+    every_frame_becomes_picks(&cfg);
+}
+
+#[test]
+fn shipped_model_runs_in_the_pipeline() {
+    let mut cfg = shipped_config("model");
+    assert_eq!(
+        cfg.inference.kind(),
+        "learned",
+        "config/default.toml ships the model"
+    );
+    cfg.camera.frames = 2;
+    cfg.camera.synthetic.objects = 8;
+    every_frame_becomes_picks(&cfg);
+}
+
+/// Runs `cfg.camera.frames` frames through the four processes without loss and checks every
+/// outcome: OK, stage stamps in order, picks from above with the pre-grasp behind, ≥ 1 pick.
+fn every_frame_becomes_picks(cfg: &PipelineConfig) {
+    let mut cfg = cfg.clone();
+    let frames = cfg.camera.frames;
     cfg.pipeline.channel.block_timeout_ms = 120_000;
     cfg.pipeline.loss_timeout_ms = 120_000;
     cfg.pipeline.channel.drop_policy = DropPolicy::Block;
-    let (report, mut sup) = run_frames(&cfg, 4, Duration::from_secs(240), &bin_dir()).unwrap();
+    let (report, mut sup) = run_frames(&cfg, frames, Duration::from_secs(240), &bin_dir()).unwrap();
     sup.shutdown(Duration::from_secs(3));
     assert_eq!(
-        report.outcomes.len(),
-        4,
+        report.outcomes.len() as u64,
+        frames,
         "every frame must come back: {:?}",
         report.outcomes.keys()
     );

@@ -80,6 +80,8 @@ enum Command {
     Datagen(psgrasp_datagen::DatagenArgs),
     /// Draw a generated scene's labelled grasps on its depth image (PNG).
     Inspect(psgrasp_datagen::InspectArgs),
+    /// Simulated clutter clearing: run detectors on the test scenes, report SR/CR per level.
+    Eval(psgrasp_eval::EvalArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -141,6 +143,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Datagen(args) => psgrasp_datagen::run_datagen(&args),
         Command::Inspect(args) => psgrasp_datagen::run_inspect(&args),
+        Command::Eval(args) => psgrasp_eval::run_eval(&args),
         Command::CheckConfig { config } => {
             let cfg = PipelineConfig::load(&config)?;
             println!(

@@ -247,12 +247,36 @@ impl PoseConfig {
 
 impl PipelineConfig {
     /// Loads and validates a TOML file.
+    /// A learned backend's relative `model_dir` and `ort_library` are taken relative to the
+    /// file's directory (so `config/default.toml` names `../models/default`), which makes the
+    /// file work from any working directory; they are stored as absolute paths.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
             path: path.into(),
             source,
         })?;
-        Self::parse(&text, path)
+        let mut cfg = Self::parse(&text, path)?;
+        // Absolute, so a configuration written back out (stress, demo) still names the same files.
+        let base = std::path::absolute(path)
+            .ok()
+            .and_then(|p| p.parent().map(Path::to_path_buf))
+            .unwrap_or_default();
+        cfg.resolve_paths(&base);
+        Ok(cfg)
+    }
+
+    /// Joins the learned backend's relative paths onto `base` (see [`PipelineConfig::load`]).
+    pub fn resolve_paths(&mut self, base: &Path) {
+        if let BackendConfig::Learned(l) = &mut self.inference {
+            if l.model_dir.is_relative() {
+                l.model_dir = base.join(&l.model_dir);
+            }
+            if let Some(lib) = &mut l.ort_library {
+                if lib.is_relative() {
+                    *lib = base.join(&*lib);
+                }
+            }
+        }
     }
 
     /// Parses and validates TOML text (`origin` names it in errors).
@@ -442,6 +466,25 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/default.toml");
         let cfg = PipelineConfig::load(&path).expect("config/default.toml must load");
         assert_eq!(cfg.workspace, Workspace::default());
+    }
+
+    #[test]
+    fn learned_model_paths_are_relative_to_the_config_file() {
+        let dir = std::env::temp_dir().join(format!("psgrasp-config-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("config")).unwrap();
+        let file = dir.join("config/x.toml");
+        std::fs::write(
+            &file,
+            "[inference]\nkind = \"learned\"\nmodel_dir = \"../models/m\"\nort_library = \"/abs/libonnxruntime.so\"\n",
+        )
+        .unwrap();
+        let cfg = PipelineConfig::load(&file).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let BackendConfig::Learned(l) = cfg.inference else {
+            panic!("expected a learned backend");
+        };
+        assert_eq!(l.model_dir, dir.join("config/../models/m"));
+        assert_eq!(l.ort_library, Some(PathBuf::from("/abs/libonnxruntime.so")));
     }
 
     #[test]

@@ -62,8 +62,10 @@ impl DetectorSpec {
         Self {
             name: name.into(),
             label: None,
+            // One runtime thread: the evaluation runs scenes in parallel (`--jobs`).
             backend: BackendConfig::Learned(LearnedConfig {
                 model_dir,
+                threads: 1,
                 ..Default::default()
             }),
         }
