@@ -345,16 +345,11 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
     let names = ctx.node.names.clone();
     let grid_sub = ctx.node.subscriber::<f32>(&names.grid())?;
     let grasps_pub = ctx.node.publisher::<GraspRecord>(&names.grasps(), 1024)?;
-    let mut backend_cfg = cfg.inference.clone();
-    // Contacts on the thin bin walls are never pickable: unless configured, restrict the
-    // analytic backend's contacts to the bin interior.
-    if let psgrasp_inference::BackendConfig::Analytic(a) = &mut backend_cfg {
-        if a.contact_region.is_none() {
-            a.contact_region = Some(psgrasp_inference::ContactRegion::inside_bin(
-                &cfg.bin, 0.005,
-            ));
-        }
-    }
+    // Unless configured, the analytic backend's contacts are restricted to the bin interior.
+    let backend_cfg = cfg
+        .inference
+        .clone()
+        .with_bin_interior_contacts(&cfg.bin, 0.005);
     // A learned model whose card does not match the workspace or gripper fails here, at start-up.
     let mut backend =
         psgrasp_inference::backend_for_workspace(&backend_cfg, &cfg.workspace, cfg.gripper)?;

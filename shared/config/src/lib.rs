@@ -266,7 +266,7 @@ impl PipelineConfig {
     }
 
     /// Joins the learned backend's relative paths onto `base` (see [`PipelineConfig::load`]).
-    pub fn resolve_paths(&mut self, base: &Path) {
+    fn resolve_paths(&mut self, base: &Path) {
         if let BackendConfig::Learned(l) = &mut self.inference {
             if l.model_dir.is_relative() {
                 l.model_dir = base.join(&l.model_dir);

@@ -19,9 +19,7 @@
 //! model directory (a folder with a `card.json`) under `models/`.
 use crate::protocol::ProtocolConfig;
 use crate::EvalError;
-use psgrasp_inference::{
-    backend_for_workspace, BackendConfig, ContactRegion, InferenceBackend, LearnedConfig,
-};
+use psgrasp_inference::{backend_for_workspace, BackendConfig, InferenceBackend, LearnedConfig};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -98,16 +96,9 @@ impl DetectorSpec {
     /// contact region gets the bin interior (as the inference stage does), so the thin bin walls
     /// are never grasped.
     pub fn effective_backend(&self, protocol: &ProtocolConfig) -> BackendConfig {
-        let mut cfg = self.backend.clone();
-        if let BackendConfig::Analytic(a) = &mut cfg {
-            if a.contact_region.is_none() {
-                a.contact_region = Some(ContactRegion::inside_bin(
-                    &protocol.scenes.bin,
-                    protocol.contact_region_inset_m,
-                ));
-            }
-        }
-        cfg
+        self.backend
+            .clone()
+            .with_bin_interior_contacts(&protocol.scenes.bin, protocol.contact_region_inset_m)
     }
 
     /// Builds the backend for the protocol's workspace and gripper.

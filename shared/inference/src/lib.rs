@@ -34,7 +34,7 @@ pub use learned::{
 pub use occupancy::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
 
 use psgrasp_fusion::NormalGridView;
-use psgrasp_geometry::{GeometryError, GraspConfiguration, GripperModel, Workspace};
+use psgrasp_geometry::{BinModel, GeometryError, GraspConfiguration, GripperModel, Workspace};
 use serde::{Deserialize, Serialize};
 
 /// Largest |normalised TSDF| accepted by [`validate_grid`]; values are defined in [−1, 1] and this
@@ -137,6 +137,17 @@ impl BackendConfig {
             Self::Analytic(_) => "analytic",
             Self::Learned(_) => "learned",
         }
+    }
+
+    /// An analytic backend without its own `contact_region` gets the interior of `bin` (inset by
+    /// `inset_m`): contacts on the thin bin walls are never pickable. Other kinds are unchanged.
+    pub fn with_bin_interior_contacts(mut self, bin: &BinModel, inset_m: f32) -> Self {
+        if let Self::Analytic(a) = &mut self {
+            if a.contact_region.is_none() {
+                a.contact_region = Some(ContactRegion::inside_bin(bin, inset_m));
+            }
+        }
+        self
     }
 }
 
@@ -245,6 +256,35 @@ mod tests {
     use super::*;
     use psgrasp_fusion::NormalGrid;
     use psgrasp_geometry::Workspace;
+
+    #[test]
+    fn bin_interior_applies_only_to_analytic_backends_without_a_region() {
+        let bin = BinModel::default();
+        let inside = ContactRegion::inside_bin(&bin, 0.005);
+        let BackendConfig::Analytic(a) =
+            BackendConfig::default().with_bin_interior_contacts(&bin, 0.005)
+        else {
+            panic!("analytic expected");
+        };
+        assert_eq!(a.contact_region, Some(inside));
+        let own = ContactRegion {
+            min_m: [0.1; 3],
+            max_m: [0.2; 3],
+        };
+        let configured = BackendConfig::Analytic(AnalyticConfig {
+            contact_region: Some(own),
+            ..Default::default()
+        });
+        assert_eq!(
+            configured.clone().with_bin_interior_contacts(&bin, 0.005),
+            configured
+        );
+        let learned = BackendConfig::Learned(LearnedConfig::default());
+        assert_eq!(
+            learned.clone().with_bin_interior_contacts(&bin, 0.005),
+            learned
+        );
+    }
 
     fn small_grid() -> NormalGrid {
         let workspace = Workspace {
