@@ -5,7 +5,7 @@ use clap::Parser;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
 use psgrasp_config::PipelineConfig;
-use psgrasp_ipc::{now_ns, FramePublisher, PipelineNode, Stage, StageStats};
+use psgrasp_ipc::{now_ns, FramePublisher, InputPort, PipelineNode, Stage, StageStats};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -20,7 +20,8 @@ pub struct StageArgs {
     pub worker: u32,
 }
 
-/// Initialises logging to stderr (`RUST_LOG` overrides the level, default `info`).
+/// Initialises logging to stderr (`RUST_LOG` overrides the level, default `info`;
+/// `PSGRASP_IOX_DEBUG` set turns on iceoryx2's own debug log).
 pub fn init_logging() {
     let filter =
         tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into());
@@ -29,7 +30,11 @@ pub fn init_logging() {
         .with_writer(std::io::stderr)
         .with_target(false)
         .try_init();
-    iceoryx2::prelude::set_log_level(LogLevel::Error);
+    if std::env::var_os("PSGRASP_IOX_DEBUG").is_some() {
+        iceoryx2::prelude::set_log_level(LogLevel::Debug);
+    } else {
+        iceoryx2::prelude::set_log_level(LogLevel::Error);
+    }
 }
 
 /// A stage process's shared state.
@@ -84,6 +89,43 @@ impl StageContext {
             stats_pub,
             stats,
         })
+    }
+
+    /// Start-up barrier: waits (up to `camera.wait_for_subscribers_ms`) until every input has at
+    /// least its expected number of publishers, attaching to them. A stage creates its output
+    /// publishers only after this, so the camera (which waits for the last stage's publishers)
+    /// sends no frame before the whole chain is attached: iceoryx2 discards a delivery to a
+    /// subscriber whose queue filled up before it attached. Returns false (after a warning) if
+    /// the wait timed out, and an error on a termination signal.
+    pub fn attach_inputs(&self, inputs: &[(&dyn InputPort, usize)]) -> Result<bool> {
+        let timeout = Duration::from_millis(self.config.camera.wait_for_subscribers_ms);
+        let ready = self.node.wait_until(timeout, || {
+            let mut all = true;
+            for (port, want) in inputs {
+                // Count first, then attach: the attach then sees at least the counted publishers.
+                all &= port.publisher_count() >= *want;
+                port.attach();
+            }
+            all
+        });
+        match ready {
+            None => anyhow::bail!("terminated while waiting for upstream stages"),
+            Some(true) => Ok(true),
+            Some(false) => {
+                for (port, want) in inputs {
+                    if port.publisher_count() < *want {
+                        tracing::warn!(
+                            "{}[{}]: starting with {} of {want} publisher(s) on {}",
+                            self.stage.name(),
+                            self.worker,
+                            port.publisher_count(),
+                            port.service()
+                        );
+                    }
+                }
+                Ok(false)
+            }
+        }
     }
 
     /// True if this worker handles `frame_id`.

@@ -45,8 +45,17 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
     let want_fusion = cfg.pipeline.workers.fusion as usize;
     let want_selection = cfg.pipeline.workers.selection as usize;
     let deadline = Instant::now() + Duration::from_millis(cfg.camera.wait_for_subscribers_ms);
+    // Each stage creates its output publishers only once its inputs are attached
+    // (`StageContext::attach_inputs`), so the selection workers' pick publishers mean the whole
+    // chain is ready.
+    let picks_publishers = || {
+        ctx.node
+            .publisher_count::<PickRecord>(&names.picks())
+            .unwrap_or(0)
+    };
     while (depth_pub.subscriber_count() < want_fusion
-        || announce_pub.subscriber_count() < want_selection)
+        || announce_pub.subscriber_count() < want_selection
+        || picks_publishers() < want_selection)
         && Instant::now() < deadline
     {
         if ctx.node.node().wait(Duration::from_millis(20)).is_err() {
@@ -57,6 +66,13 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
         tracing::warn!(
             "publishing without all grid-fusion workers connected ({} of {want_fusion})",
             depth_pub.subscriber_count()
+        );
+    }
+    if picks_publishers() < want_selection {
+        tracing::warn!(
+            "publishing before all stages are ready ({} of {want_selection} grasp-selection \
+             workers publish picks)",
+            picks_publishers()
         );
     }
     tracing::info!(
@@ -228,6 +244,7 @@ pub fn run_grid_fusion(args: StageArgs) -> Result<()> {
     let names = ctx.node.names.clone();
     let n = cfg.workspace.voxel_count();
     let depth_sub = ctx.node.subscriber::<f32>(&names.depth())?;
+    ctx.attach_inputs(&[(&depth_sub, 1)])?;
     let grid_pub = ctx.node.publisher::<f32>(&names.grid(), 4 * n)?;
     let mut volume = TsdfVolume::new(cfg.workspace, &cfg.fusion)?;
     let mut last_stats = Instant::now();
@@ -344,7 +361,6 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
     let cfg = ctx.config.clone();
     let names = ctx.node.names.clone();
     let grid_sub = ctx.node.subscriber::<f32>(&names.grid())?;
-    let grasps_pub = ctx.node.publisher::<GraspRecord>(&names.grasps(), 1024)?;
     // Unless configured, the analytic backend's contacts are restricted to the bin interior.
     let backend_cfg = cfg
         .inference
@@ -353,6 +369,8 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
     // A learned model whose card does not match the workspace or gripper fails here, at start-up.
     let mut backend =
         psgrasp_inference::backend_for_workspace(&backend_cfg, &cfg.workspace, cfg.gripper)?;
+    ctx.attach_inputs(&[(&grid_sub, cfg.pipeline.workers.fusion as usize)])?;
+    let grasps_pub = ctx.node.publisher::<GraspRecord>(&names.grasps(), 1024)?;
     let mut last_stats = Instant::now();
     tracing::info!(
         "inference[{}] ready (backend {})",
@@ -431,6 +449,12 @@ pub fn run_grasp_selection(args: StageArgs) -> Result<()> {
     let announce_sub = ctx
         .node
         .subscriber_with_buffer::<u8>(&names.announce(), 1024)?;
+    let w = cfg.pipeline.workers;
+    ctx.attach_inputs(&[
+        (&announce_sub, 1),
+        (&grid_sub, w.fusion as usize),
+        (&grasps_sub, w.inference as usize),
+    ])?;
     let picks_pub = ctx
         .node
         .publisher::<PickRecord>(&names.picks(), MAX_PICKS_PER_FRAME)?;

@@ -150,7 +150,9 @@ pub struct CameraSection {
     pub pose: Option<PoseConfig>,
     /// Camera height above the bin rim for the default top-down pose.
     pub height_above_rim_m: f32,
-    /// Wait up to this long for grid-fusion to connect before publishing the first frame.
+    /// Start-up barrier: how long each stage waits for its upstream publishers (attaching to
+    /// them) and the camera for the whole chain before publishing the first frame; after it,
+    /// they start anyway with a warning.
     pub wait_for_subscribers_ms: u64,
     /// Synthetic source settings.
     pub synthetic: SyntheticSource,

@@ -29,6 +29,6 @@ pub use header::{now_ns, FrameHeader, MessageKind, Stage, Stamp, StatusCode, PRO
 pub use records::{GraspRecord, NextPickRequest, NextPickResponse, PickRecord, StageStats};
 pub use tracker::{FrameTracker, TrackerEvent};
 pub use transport::{
-    cleanup_dead_nodes, ChannelConfig, DropPolicy, FramePublisher, FrameSubscriber, IpcError,
-    PipelineNode, ServiceNames,
+    cleanup_dead_nodes, ChannelConfig, DropPolicy, FramePublisher, FrameSubscriber, InputPort,
+    IpcError, PipelineNode, ServiceNames,
 };

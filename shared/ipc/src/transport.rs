@@ -177,6 +177,33 @@ impl PipelineNode {
         &self.node
     }
 
+    /// Waits in 10 ms steps until `ready()` holds or `timeout` passes. Returns whether it held,
+    /// or `None` when a termination signal arrived meanwhile.
+    pub fn wait_until(&self, timeout: Duration, mut ready: impl FnMut() -> bool) -> Option<bool> {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            if ready() {
+                return Some(true);
+            }
+            if std::time::Instant::now() >= deadline {
+                return Some(false);
+            }
+            if self.node.wait(Duration::from_millis(10)).is_err() {
+                return None;
+            }
+        }
+    }
+
+    /// Publishers currently on the publish-subscribe service `service` of `[T]` messages (opened
+    /// with this node's queue settings, without subscribing to it).
+    pub fn publisher_count<T: Debug + ZeroCopySend + 'static>(
+        &self,
+        service: &str,
+    ) -> Result<usize, IpcError> {
+        let factory = self.pubsub::<T>(service, 0, self.channel.subscriber_buffer)?;
+        Ok(factory.dynamic_config().number_of_publishers())
+    }
+
     fn pubsub<T: Debug + ZeroCopySend + 'static>(
         &self,
         service: &str,
@@ -316,7 +343,7 @@ impl PipelineNode {
             .buffer_size(buffer)
             .create()
             .map_err(setup(format!("subscriber on {service}")))?;
-        // A subscriber connects on its first receive: do it now so no early frame is lost.
+        // A subscriber attaches to the publishers present on its receive calls: do it now.
         let _ = subscriber.has_samples();
         let listener = self
             .event(service)?
@@ -325,6 +352,7 @@ impl PipelineNode {
             .map_err(setup(format!("listener on {service}")))?;
         Ok(FrameSubscriber {
             service: service.to_string(),
+            factory,
             subscriber,
             listener,
         })
@@ -374,11 +402,25 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
             header.stamp(stamp);
         }
         *sample.user_header_mut() = header;
+        let subscribers = self.subscriber_count();
         let delivered = sample.send().map_err(|e| IpcError::Send {
             service: self.service.clone(),
             detail: format!("{e:?}"),
         })?;
         let _ = self.notifier.notify();
+        // iceoryx2 discards a delivery without an error when the subscriber's queue is full and
+        // the subscriber has not attached to this publisher yet (it does so on its next receive):
+        // count and log it like any other drop.
+        let missed = subscribers.saturating_sub(delivered);
+        if missed > 0 {
+            self.dropped.fetch_add(missed as u64, Ordering::Relaxed);
+            tracing::warn!(
+                "{}: frame {} reached {delivered} of {subscribers} subscribers (queue full before \
+                 the subscriber attached); counted as dropped",
+                self.service,
+                header.frame_id
+            );
+        }
         Ok(Ok(delivered))
     }
 
@@ -410,6 +452,7 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
 /// Receives header + slice messages; its listener goes into a WaitSet.
 pub struct FrameSubscriber<T: Debug + ZeroCopySend + 'static> {
     service: String,
+    factory: PubSubFactory<ipc::Service, [T], FrameHeader>,
     subscriber: Subscriber<ipc::Service, [T], FrameHeader>,
     listener: Listener<ipc::Service>,
 }
@@ -421,6 +464,19 @@ impl<T: Debug + ZeroCopySend + 'static> FrameSubscriber<T> {
             service: self.service.clone(),
             detail: format!("{e:?}"),
         })
+    }
+
+    /// Publishers currently on the service.
+    pub fn publisher_count(&self) -> usize {
+        self.factory.dynamic_config().number_of_publishers()
+    }
+
+    /// Attaches to every publisher present now. iceoryx2 attaches a subscriber on its receive
+    /// calls; until then a publisher that fills this subscriber's queue discards further
+    /// deliveries, so stages attach before they announce themselves ready (see
+    /// [`PipelineNode::wait_until`]).
+    pub fn attach(&self) {
+        let _ = self.subscriber.has_samples();
     }
 
     /// Clears pending wake-up events (call before draining with [`Self::receive`]).
@@ -436,6 +492,29 @@ impl<T: Debug + ZeroCopySend + 'static> FrameSubscriber<T> {
     /// The listener to attach to a WaitSet.
     pub fn listener(&self) -> &Listener<ipc::Service> {
         &self.listener
+    }
+}
+
+/// A subscriber seen only as an input that must attach to its publishers (see
+/// [`FrameSubscriber::attach`]); lets a stage wait on inputs of different payload types.
+pub trait InputPort {
+    /// The service name.
+    fn service(&self) -> &str;
+    /// Publishers currently on the service.
+    fn publisher_count(&self) -> usize;
+    /// Attaches to every publisher present now.
+    fn attach(&self);
+}
+
+impl<T: Debug + ZeroCopySend + 'static> InputPort for FrameSubscriber<T> {
+    fn service(&self) -> &str {
+        &self.service
+    }
+    fn publisher_count(&self) -> usize {
+        FrameSubscriber::publisher_count(self)
+    }
+    fn attach(&self) {
+        FrameSubscriber::attach(self)
     }
 }
 
