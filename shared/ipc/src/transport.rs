@@ -403,6 +403,7 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
         }
         *sample.user_header_mut() = header;
         let subscribers = self.subscriber_count();
+        let discarded_before = self.dropped.load(Ordering::Relaxed);
         let delivered = sample.send().map_err(|e| IpcError::Send {
             service: self.service.clone(),
             detail: format!("{e:?}"),
@@ -410,8 +411,12 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
         let _ = self.notifier.notify();
         // iceoryx2 discards a delivery without an error when the subscriber's queue is full and
         // the subscriber has not attached to this publisher yet (it does so on its next receive):
-        // count and log it like any other drop.
-        let missed = subscribers.saturating_sub(delivered);
+        // count and log it like any other drop. Discards by the drop policy were counted by the
+        // back-pressure handler already.
+        let by_policy = self.dropped.load(Ordering::Relaxed) - discarded_before;
+        let missed = subscribers
+            .saturating_sub(delivered)
+            .saturating_sub(by_policy as usize);
         if missed > 0 {
             self.dropped.fetch_add(missed as u64, Ordering::Relaxed);
             tracing::warn!(

@@ -102,3 +102,21 @@ fn waiting_for_a_publisher_that_never_comes_times_out() {
     assert_eq!(ready, Some(false));
     assert_eq!(node.publisher_count::<u32>(&service(&name)).unwrap(), 0);
 }
+
+#[test]
+fn drop_newest_counts_a_full_queue_once() {
+    let name = pipeline("newest");
+    let cfg = ChannelConfig {
+        drop_policy: DropPolicy::DropNewest,
+        ..channel(2)
+    };
+    let node = PipelineNode::new(&format!("{name}-sub"), &name, cfg).unwrap();
+    let sub = node.subscriber::<u32>(&service(&name)).unwrap();
+    let publisher = node.publisher::<u32>(&service(&name), 4).unwrap();
+    sub.attach();
+    let delivered: Vec<usize> = (1..=3u64)
+        .map(|id| publisher.send_slice(header(id), &[id as u32]).unwrap())
+        .collect();
+    assert_eq!(delivered, vec![1, 1, 0]);
+    assert_eq!(publisher.dropped(), 1);
+}

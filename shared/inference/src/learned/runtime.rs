@@ -640,7 +640,13 @@ mod ort_runtime {
         let builder = builder
             .with_intra_threads(threads)
             .map_err(|e| err(e.into()))?;
-        let mut builder = builder.with_inter_threads(1).map_err(|e| err(e.into()))?;
+        let builder = builder.with_inter_threads(1).map_err(|e| err(e.into()))?;
+        // No busy-waiting between operators: spinning threads of the U-Net session took the
+        // cores from the MLP session and from the other pipeline processes (measured on 2 cores:
+        // MLP 53 → 22 ms, total 319 → 250 ms; docs/benchmarks.md).
+        let mut builder = builder
+            .with_intra_op_spinning(false)
+            .map_err(|e| err(e.into()))?;
         builder.commit_from_memory(bytes).map_err(&err)
     }
 
