@@ -29,6 +29,10 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--reference", type=Path, default=None, help="scene file for reference.safetensors")
     e.add_argument("--contact-probability", type=float, default=None,
                    help="card contact threshold (default: the config's export.contact_probability)")
+    e.add_argument("--checkpoint", default="latest.pt", help="file name under RUN/checkpoints")
+    e.add_argument("--variant", default=None, choices=["8app", "1app-kappa"],
+                   help="export an 8app run as the inference-time ablation 1app-kappa (\"w κ + 1app\": "
+                        "same training, one approach per grasp) or back")
 
     i = sub.add_parser("init", help="create a run directory holding an untrained model (step 0)")
     i.add_argument("--config", required=True, type=Path)
@@ -75,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "export":
             from .export import export_run
 
-            card = export_run(args.run, args.out, args.reference, args.contact_probability)
+            card = export_run(args.run, args.out, args.reference, args.contact_probability,
+                              checkpoint=args.checkpoint, variant=args.variant)
             print(f"wrote {args.out} ({card['name']}, {card['training']['iterations']} iterations)")
         elif args.command == "init":
             from .train import init_run

@@ -234,11 +234,23 @@ def write_reference(path: Path, normal_grid: torch.Tensor, logits: torch.Tensor,
     save_file(tensors, str(path), metadata={"psgrasp_reference": json.dumps(meta)})
 
 
+#: Variants trained identically (they differ only at inference), so a run may be exported as either.
+SAME_TRAINING = ("8app", "1app-kappa")
+
+
 def export_run(run_dir: Path, out_dir: Path, reference_scene: Path | None = None,
-               contact_probability: float | None = None, log=print) -> dict[str, Any]:
-    """Export the latest checkpoint of a run directory."""
-    state = load_checkpoint(run_dir)
+               contact_probability: float | None = None, log=print, checkpoint: str = "latest.pt",
+               variant: str | None = None) -> dict[str, Any]:
+    """Export a checkpoint (default the latest) of a run directory, optionally as another variant
+    with the same training (8app ↔ 1app-kappa)."""
+    state = load_checkpoint(run_dir, checkpoint)
     cfg: Config = state["config"]
+    if variant is not None and variant != cfg.variant:
+        if cfg.variant not in SAME_TRAINING or variant not in SAME_TRAINING:
+            raise ExportError(f"a {cfg.variant} run cannot be exported as {variant}: only {' and '.join(SAME_TRAINING)} "
+                              "share their training")
+        cfg.variant = variant
+        cfg.name = ""
     net = GraspNet(cfg)
     net.load_state_dict(state["model"])
     return export_model(net, cfg, state["dataset"], out_dir, state["step"], state.get("validation"), reference_scene,

@@ -107,3 +107,20 @@ def test_same_seed_same_weights_and_exact_resume(box_dataset, tmp_path):
 def test_cli_reports_errors(tmp_path, capsys):
     assert main(["export", "--run", str(tmp_path / "missing"), "--out", str(tmp_path / "m")]) == 2
     assert "no checkpoint" in capsys.readouterr().err
+
+
+def test_an_8app_run_exports_as_the_1app_ablation_from_any_checkpoint(trained_run, tmp_path, capsys):
+    run, _ = trained_run
+    out = tmp_path / "w-kappa-1app"
+    assert main(["export", "--run", str(run), "--out", str(out), "--checkpoint", "step_0000005.pt",
+                 "--variant", "1app-kappa"]) == 0
+    card = json.loads((out / "card.json").read_text())
+    assert card["inference"]["single_approach"] is True and "1app-kappa" in card["name"]
+    assert card["training"]["iterations"] == 5
+    plain = json.loads((run / "model" / "card.json").read_text())
+    assert plain["inference"]["single_approach"] is False
+    # The cosine ablation is trained differently: an 8app run cannot stand in for it.
+    from psgrasp_training.export import ExportError, export_run
+
+    with pytest.raises(ExportError, match="cannot be exported as 1app-cosine"):
+        export_run(run, tmp_path / "x", variant="1app-cosine", log=quiet)

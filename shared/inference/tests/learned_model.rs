@@ -329,6 +329,36 @@ fn backend_end_to_end(kind: RuntimeKind, ort_library: Option<PathBuf>) {
         }
     }
 
+    // The "1app" override keeps, per grasp, only the best of the 8app scores.
+    let mut single = LearnedBackend::new(
+        LearnedConfig {
+            single_approach: Some(true),
+            ..cfg.clone()
+        },
+        &workspace(),
+        gripper(),
+    )
+    .unwrap();
+    let singles = single.infer(&grid.view(), 0).unwrap();
+    assert_eq!(singles.len(), configs.len());
+    let mut kept_some = false;
+    for (one, all) in singles.iter().zip(&configs) {
+        assert_eq!(one.contact, all.contact);
+        let best = all.collision_scores.iter().cloned().fold(0.0f32, f32::max);
+        let nonzero: Vec<f32> = one
+            .collision_scores
+            .iter()
+            .cloned()
+            .filter(|&s| s > 0.0)
+            .collect();
+        assert!(nonzero.len() <= 1);
+        if let Some(&s) = nonzero.first() {
+            assert!((s - best).abs() <= 1e-6);
+            kept_some = true;
+        }
+    }
+    assert!(kept_some);
+
     // A cap on contact voxels keeps the most probable ones.
     let capped_cfg = LearnedConfig {
         max_contact_voxels: 3,

@@ -58,6 +58,9 @@ pub struct LearnedConfig {
     pub contact_probability: Option<f32>,
     /// Rows per MLP run.
     pub mlp_batch: usize,
+    /// Overrides the card's `inference.single_approach`: `true` keeps only the best of the 18
+    /// approaches per grasp (the paper's "w κ + 1app" ablation of a model trained as 8app).
+    pub single_approach: Option<bool>,
 }
 
 impl Default for LearnedConfig {
@@ -70,6 +73,7 @@ impl Default for LearnedConfig {
             max_contact_voxels: 4096,
             contact_probability: None,
             mlp_batch: 4096,
+            single_approach: None,
         }
     }
 }
@@ -429,12 +433,16 @@ impl InferenceBackend for LearnedBackend {
         t.mlp = t0.elapsed();
 
         let t0 = Instant::now();
+        let card_single_approach = self.model.decode_settings().single_approach;
         let decoder = Decoder::new(
             &self.probabilities,
             &workspace,
             &self.points,
             &self.head,
-            &self.model.decode_settings(),
+            &DecodeSettings {
+                single_approach: self.cfg.single_approach.unwrap_or(card_single_approach),
+                ..self.model.decode_settings()
+            },
         )?;
         let mut out = Vec::with_capacity(decoder.len());
         match &self.pool {
