@@ -44,7 +44,6 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
     // Wait for the consumers so the first frames are not published into the void.
     let want_fusion = cfg.pipeline.workers.fusion as usize;
     let want_selection = cfg.pipeline.workers.selection as usize;
-    let deadline = Instant::now() + Duration::from_millis(cfg.camera.wait_for_subscribers_ms);
     // Each stage creates its output publishers only once its inputs are attached
     // (`StageContext::attach_inputs`), so the selection workers' pick publishers mean the whole
     // chain is ready.
@@ -53,14 +52,16 @@ pub fn run_camera_ingest(args: StageArgs) -> Result<()> {
             .publisher_count::<PickRecord>(&names.picks())
             .unwrap_or(0)
     };
-    while (depth_pub.subscriber_count() < want_fusion
-        || announce_pub.subscriber_count() < want_selection
-        || picks_publishers() < want_selection)
-        && Instant::now() < deadline
-    {
-        if ctx.node.node().wait(Duration::from_millis(20)).is_err() {
-            return Ok(());
-        }
+    let chain_ready = ctx.node.wait_until(
+        Duration::from_millis(cfg.camera.wait_for_subscribers_ms),
+        || {
+            depth_pub.subscriber_count() >= want_fusion
+                && announce_pub.subscriber_count() >= want_selection
+                && picks_publishers() >= want_selection
+        },
+    );
+    if chain_ready.is_none() {
+        return Ok(());
     }
     if depth_pub.subscriber_count() < want_fusion {
         tracing::warn!(

@@ -433,16 +433,16 @@ impl InferenceBackend for LearnedBackend {
         t.mlp = t0.elapsed();
 
         let t0 = Instant::now();
-        let card_single_approach = self.model.decode_settings().single_approach;
+        let mut settings = self.model.decode_settings();
+        if let Some(single) = self.cfg.single_approach {
+            settings.single_approach = single;
+        }
         let decoder = Decoder::new(
             &self.probabilities,
             &workspace,
             &self.points,
             &self.head,
-            &DecodeSettings {
-                single_approach: self.cfg.single_approach.unwrap_or(card_single_approach),
-                ..self.model.decode_settings()
-            },
+            &settings,
         )?;
         let mut out = Vec::with_capacity(decoder.len());
         match &self.pool {
