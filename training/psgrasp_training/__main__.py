@@ -11,7 +11,7 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m psgrasp_training", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
 
-    t = sub.add_parser("train", help="train a model (resumable), validate and export")
+    t = sub.add_parser("train", help="train a model (resumable), validate and export (variant = \"vgn\": the VGN-style baseline)")
     t.add_argument("--config", required=True, type=Path, help="TOML config (training/configs/*.toml)")
     t.add_argument("--data", required=True, type=Path, help="psgrasp dataset directory (manifest.json + scenes)")
     t.add_argument("--out", required=True, type=Path, help="run directory (checkpoints, log.csv, model/)")
@@ -23,7 +23,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--stop-at", type=int, default=None, help="stop cleanly at this step (resumable)")
     t.add_argument("--no-export", action="store_true", help="do not export RUN_DIR/model at the end")
 
-    e = sub.add_parser("export", help="export a run to unet.onnx + mlp.onnx + card.json")
+    e = sub.add_parser("export", help="export a run to unet.onnx + mlp.onnx + card.json (vgn runs: vgn.onnx + card.json)")
     e.add_argument("--run", required=True, type=Path, help="run directory")
     e.add_argument("--out", required=True, type=Path, help="model directory to write")
     e.add_argument("--reference", type=Path, default=None, help="scene file for reference.safetensors")
@@ -75,12 +75,22 @@ def main(argv: list[str] | None = None) -> int:
             if args.max_minutes is not None:
                 cfg.train.max_minutes = args.max_minutes
             cfg.validate()
+            if cfg.variant == "vgn":
+                from .vgn import train_vgn as train
             train(cfg, args.data, args.out, resume=args.resume, export=not args.no_export, stop_at=args.stop_at)
         elif args.command == "export":
+            from .checkpoint import load_checkpoint
             from .export import export_run
 
-            card = export_run(args.run, args.out, args.reference, args.contact_probability,
-                              checkpoint=args.checkpoint, variant=args.variant)
+            if load_checkpoint(args.run, args.checkpoint)["config"].variant == "vgn":
+                from .vgn import export_vgn_run
+
+                if args.variant not in (None, "vgn") or args.contact_probability is not None:
+                    raise ExportError("a vgn run exports only as vgn (no --variant/--contact-probability)")
+                card = export_vgn_run(args.run, args.out, args.reference, checkpoint=args.checkpoint)
+            else:
+                card = export_run(args.run, args.out, args.reference, args.contact_probability,
+                                  checkpoint=args.checkpoint, variant=args.variant)
             print(f"wrote {args.out} ({card['name']}, {card['training']['iterations']} iterations)")
         elif args.command == "init":
             from .train import init_run

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 #: Model variants (network contract ``variant`` field).
-VARIANTS = ("8app", "1app-kappa", "1app-cosine")
+VARIANTS = ("8app", "1app-kappa", "1app-cosine", "vgn")
 
 
 class ConfigError(ValueError):
@@ -222,6 +222,8 @@ class Config:
         g = self.grid
         if len(g.dims) != 3 or any(d < 1 for d in g.dims):
             raise ConfigError("grid.dims must be three positive sizes")
+        if self.variant == "vgn" and any(d % 8 for d in g.dims):
+            raise ConfigError(f"grid.dims {g.dims} must be divisible by 8 for the VGN-style network (3 stride-2 levels)")
         for d in g.dims:
             if d % 2 ** (m.levels - 1):
                 raise ConfigError(f"grid.dims {g.dims} not divisible by 2^(levels-1) = {2 ** (m.levels - 1)}")

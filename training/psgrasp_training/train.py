@@ -213,14 +213,14 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true}
 
 
-def _open_log(run_dir: Path, resume_step: int):
+def _open_log(run_dir: Path, resume_step: int, fields: list[str] = LOG_FIELDS):
     path = run_dir / "log.csv"
     rows = []
     if resume_step > 0 and path.is_file():
         with path.open() as f:
             rows = [r for r in csv.DictReader(f) if int(r["step"]) <= resume_step]
     f = path.open("w", newline="")
-    w = csv.DictWriter(f, fieldnames=LOG_FIELDS)
+    w = csv.DictWriter(f, fieldnames=fields)
     w.writeheader()
     w.writerows(rows)
     f.flush()

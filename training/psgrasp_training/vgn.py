@@ -1,0 +1,384 @@
+"""The VGN-style baseline (variant ``vgn``): one grasp per voxel, retrained on our data.
+
+As the paper retrained VGN (Breyer et al., CoRL 2020) for its comparison, this module trains a
+fully convolutional network on the same scenes and labels as the two-stage model, with VGN's
+targets: every voxel that holds the centre of at least one labelled grasp (collision-free approach,
+quality > 0.5) is a positive with the single best-quality orientation and width found there; every
+other voxel is a negative. Per voxel the network predicts a grasp quality, an orientation and an
+opening width (VGN's three heads).
+
+Deviations from VGN, all documented in ``training/README.md``: the input is our normal grid (3
+channels, the input the two-stage model gets) instead of a TSDF; the orientation is predicted as a
+baseline and an approach vector (the 6-D rotation representation) instead of a quaternion, with the
+gripper's symmetry (b, a) ≡ (−b, a) in the loss; upsampling uses transposed convolutions (kernel =
+stride = 2); the quality loss averages positives and negatives separately (VGN's data set samples
+them in balance; dense voxel labels do not).
+
+Graph contract (``vgn.onnx``): input ``normal_grid`` [1, 3, X, Y, Z]; outputs ``quality`` [1, 1, X,
+Y, Z] (sigmoid), ``baseline`` [1, 3, X, Y, Z] (unit), ``approach`` [1, 3, X, Y, Z] (unit, ⟂
+baseline), ``width`` [1, 1, X, Y, Z] (m). The grasp of voxel (i, j, k) is centred on the voxel centre.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from . import __version__
+from .checkpoint import DatasetInfo, RunError, load_checkpoint, save_checkpoint, write_json
+from .config import Config
+from .data import Scene, SceneDataset, read_scene
+from .decode import approach_vectors
+from .model import Conv3d, ConvTranspose3d
+
+#: Output names of ``vgn.onnx`` in order.
+VGN_OUTPUTS = ("quality", "baseline", "approach", "width")
+#: Card format of VGN-style model directories.
+VGN_CARD_FORMAT = "psgrasp-vgn-model"
+VGN_FORMAT_VERSION = 1
+#: Labelled grasps of at most this quality are not targets (the data set's rule for a good grasp).
+MIN_LABEL_QUALITY = 0.5
+#: Weight of the width MSE (in voxel units), as VGN.
+WIDTH_WEIGHT = 0.01
+LOG_FIELDS = ["step", "loss", "quality", "rotation", "width", "positives", "lr", "seconds", "elapsed_s"]
+#: Middle of the approach index range: ties in quality go to the most vertical approach.
+_MID_APPROACH = 8.5
+
+
+class VgnNet(nn.Module):
+    """VGN's encoder–decoder: three stride-2 convolutions (5³, 3³, 3³), three convolution + 2×
+    upsampling stages, and 3³ heads for quality, baseline, approach and width at full resolution."""
+
+    def __init__(self, base_channels: int = 16, in_channels: int = 3):
+        super().__init__()
+        c = [base_channels, 2 * base_channels, 4 * base_channels]
+        self.channels = c
+        self.encoder = nn.Sequential(
+            Conv3d(in_channels, c[0], 5, stride=2, padding=2), nn.ReLU(inplace=True),
+            Conv3d(c[0], c[1], 3, stride=2, padding=1), nn.ReLU(inplace=True),
+            Conv3d(c[1], c[2], 3, stride=2, padding=1), nn.ReLU(inplace=True),
+        )
+        self.decoder = nn.Sequential(
+            Conv3d(c[2], c[2], 3, padding=1), nn.ReLU(inplace=True), ConvTranspose3d(c[2], c[2], 2, stride=2),
+            Conv3d(c[2], c[1], 3, padding=1), nn.ReLU(inplace=True), ConvTranspose3d(c[1], c[1], 2, stride=2),
+            Conv3d(c[1], c[0], 3, padding=1), nn.ReLU(inplace=True), ConvTranspose3d(c[0], c[0], 2, stride=2),
+        )
+        self.head = Conv3d(c[0], 1 + 3 + 3 + 1, 3, padding=1)
+
+    def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Raw heads: ``quality_logit`` [B,1,...], ``baseline``/``approach`` [B,3,...] (not normalised),
+        ``width_vox`` [B,1,...] (voxel units)."""
+        y = self.head(self.decoder(self.encoder(x)))
+        return {"quality_logit": y[:, 0:1], "baseline": y[:, 1:4], "approach": y[:, 4:7], "width_vox": y[:, 7:8]}
+
+
+def orientation(baseline_raw: torch.Tensor, approach_raw: torch.Tensor, eps: float = 1e-8):
+    """Unit baseline and the approach made orthogonal to it and unit (channel dim 1)."""
+    b = baseline_raw / baseline_raw.norm(dim=1, keepdim=True).clamp_min(eps)
+    a = approach_raw - (approach_raw * b).sum(1, keepdim=True) * b
+    a = a / a.norm(dim=1, keepdim=True).clamp_min(eps)
+    return b, a
+
+
+class VgnExport(nn.Module):
+    """``vgn.onnx``: activations in-graph, width in metres."""
+
+    def __init__(self, net: VgnNet, voxel_size_m: float):
+        super().__init__()
+        self.net = net
+        self.voxel_size_m = float(voxel_size_m)
+
+    def forward(self, normal_grid: torch.Tensor):
+        out = self.net(normal_grid)
+        b, a = orientation(out["baseline"], out["approach"])
+        return torch.sigmoid(out["quality_logit"]), b, a, out["width_vox"] * self.voxel_size_m
+
+
+def vgn_targets(scene: Scene, min_quality: float = MIN_LABEL_QUALITY) -> dict[str, torch.Tensor]:
+    """VGN targets of a scene: ``positive`` [X,Y,Z] bool, ``baseline``/``approach`` [3,X,Y,Z] and
+    ``width`` [X,Y,Z] (m; zero at negatives).
+
+    Candidates are all (configuration, approach) pairs with a collision-free approach and quality
+    > ``min_quality``; the pair's voxel is the one holding its centre c + b·w/2. Per voxel the best
+    quality wins, ties go to the approach closest to vertical, then to the lower configuration index
+    (deterministic)."""
+    dims = scene.dims
+    nvox = dims[0] * dims[1] * dims[2]
+    out = {"positive": torch.zeros(dims, dtype=torch.bool), "baseline": torch.zeros(3, *dims),
+           "approach": torch.zeros(3, *dims), "width": torch.zeros(dims)}
+    if len(scene.contact) == 0:
+        return out
+    ok = (scene.collision_free > 0.5) & (scene.quality > min_quality).unsqueeze(1)
+    centre = scene.contact + scene.baseline * (0.5 * scene.width).unsqueeze(1)
+    ijk = torch.floor(centre / scene.voxel_size_m).long()
+    inside = ((ijk >= 0) & (ijk < torch.tensor(dims))).all(1)
+    ok &= inside.unsqueeze(1)
+    gi, ai = ok.nonzero(as_tuple=True)
+    if len(gi) == 0:
+        return out
+    q = scene.quality[gi].double().numpy()
+    order = np.lexsort((gi.numpy(), np.abs(ai.numpy() - _MID_APPROACH), -q))
+    rank = torch.empty(len(gi), dtype=torch.long)
+    rank[torch.from_numpy(order)] = torch.arange(len(gi))
+    v = ijk[gi]
+    lin = (v[:, 0] * dims[1] + v[:, 1]) * dims[2] + v[:, 2]
+    best = torch.full((nvox,), len(gi), dtype=torch.long).scatter_reduce(0, lin, rank, "amin")
+    win = rank == best[lin]
+    gw, aw, lw = gi[win], ai[win], lin[win]
+    b = scene.baseline[gw]
+    b = b / b.norm(dim=1, keepdim=True)
+    a = approach_vectors(b)[torch.arange(len(gw)), aw]
+    pos = out["positive"].view(-1)
+    pos[lw] = True
+    out["baseline"].view(3, -1)[:, lw] = b.T
+    out["approach"].view(3, -1)[:, lw] = a.T
+    out["width"].view(-1)[lw] = scene.width[gw]
+    return out
+
+
+def vgn_loss(out: dict[str, torch.Tensor], targets: dict[str, torch.Tensor], voxel_size_m: float) -> dict:
+    """Quality BCE (mean over positives + mean over negatives), and at positives the orientation
+    loss (1 − |b̂·b|) + (1 − â·a) and 0.01 × width MSE in voxel units (VGN's weights)."""
+    pos = targets["positive"].unsqueeze(0)
+    logit = out["quality_logit"][:, 0]
+    bce = F.binary_cross_entropy_with_logits(logit, pos.float(), reduction="none")
+    n_pos = int(pos.sum())
+    neg_term = bce[~pos].mean() if bool((~pos).any()) else logit.sum() * 0
+    if n_pos == 0:
+        zero = logit.sum() * 0
+        return {"loss": neg_term, "quality": neg_term, "rotation": zero, "width": zero, "positives": 0.0}
+    q_loss = bce[pos].mean() + neg_term
+    b_hat, a_hat = orientation(out["baseline"], out["approach"])
+    m = pos[0]
+    bp, ap = b_hat[0][:, m], a_hat[0][:, m]
+    bt, at = targets["baseline"][:, m], targets["approach"][:, m]
+    rot = ((1 - (bp * bt).sum(0).abs()) + (1 - (ap * at).sum(0))).mean()
+    w = F.mse_loss(out["width_vox"][0, 0][m], targets["width"][m] / voxel_size_m)
+    loss = q_loss + rot + WIDTH_WEIGHT * w
+    return {"loss": loss, "quality": q_loss, "rotation": rot, "width": w, "positives": float(n_pos)}
+
+
+def _to(t: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:
+    return t if device.type == "cpu" else {k: v.to(device) for k, v in t.items()}
+
+
+@torch.no_grad()
+def evaluate_vgn(net: VgnNet, ds: SceneDataset, cfg: Config, device: torch.device, max_scenes: int = 0) -> dict:
+    """Held-out metrics: precision/recall of positive voxels at quality 0.5 and 0.9, and at true
+    positives the baseline angle error (sign-free), approach angle error and width error."""
+    net.eval()
+    entries = ds.val_entries[: max_scenes] if max_scenes > 0 else ds.val_entries
+    counts = {t: [0, 0, 0] for t in (0.5, 0.9)}  # tp, predicted, true
+    b_err, a_err, w_err = [], [], []
+    for entry in entries:
+        scene = ds.scene(entry)
+        tg = vgn_targets(scene)
+        out = net(scene.normals.unsqueeze(0).to(device))
+        q = torch.sigmoid(out["quality_logit"][0, 0]).cpu()
+        for t, c in counts.items():
+            p = q >= t
+            c[0] += int((p & tg["positive"]).sum())
+            c[1] += int(p.sum())
+            c[2] += int(tg["positive"].sum())
+        m = tg["positive"]
+        if bool(m.any()):
+            b, a = orientation(out["baseline"].cpu(), out["approach"].cpu())
+            b_err.append(torch.rad2deg(torch.acos((b[0][:, m] * tg["baseline"][:, m]).sum(0).abs().clamp(max=1))))
+            a_err.append(torch.rad2deg(torch.acos((a[0][:, m] * tg["approach"][:, m]).sum(0).clamp(-1, 1))))
+            w_err.append((out["width_vox"][0, 0].cpu()[m] * scene.voxel_size_m - tg["width"][m]).abs() * 1000)
+    net.train()
+
+    def mean(xs):
+        return float(torch.cat(xs).mean()) if xs else 0.0
+
+    res: dict[str, Any] = {"scenes": len(entries)}
+    for t, (tp, npred, ntrue) in counts.items():
+        res[f"precision@{t}"] = tp / npred if npred else 0.0
+        res[f"recall@{t}"] = tp / ntrue if ntrue else 0.0
+    res.update(positives=counts[0.5][2], baseline_angle_error_deg=mean(b_err), approach_angle_error_deg=mean(a_err),
+               width_error_mm=mean(w_err))
+    return res
+
+
+def train_vgn(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: bool = True, log=print,
+              stop_at: int | None = None) -> dict:
+    """Train (or resume) a VGN-style run: same run-directory layout, schedule, seeds and flip
+    augmentation as :func:`psgrasp_training.train.train`; exports ``RUN/model`` at the end."""
+    from .train import _open_log, apply_dataset_geometry, learning_rate, scene_for_step, setup_torch
+
+    run_dir = Path(run_dir)
+    device = setup_torch(cfg)
+    ds = SceneDataset(data, cfg)
+    apply_dataset_geometry(cfg, ds.info)
+    torch.manual_seed(cfg.seed)
+    net = VgnNet(cfg.model.base_channels)
+    start, elapsed0, opt_state = 0, 0.0, None
+    if resume:
+        state = load_checkpoint(run_dir)
+        old: Config = state["config"]
+        if old.to_dict()["model"] != cfg.to_dict()["model"] or old.variant != cfg.variant or old.seed != cfg.seed:
+            raise RunError(f"{run_dir}: --resume with a different model, variant or seed than the checkpoint")
+        net.load_state_dict(state["model"])
+        start, elapsed0, opt_state = state["step"], state.get("elapsed_s", 0.0), state["optimizer"]
+    net.to(device).train()
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.train.lr)
+    if opt_state is not None:
+        opt.load_state_dict(opt_state)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_json(run_dir / "config.json", cfg.to_dict())
+    write_json(run_dir / "dataset.json", ds.info.__dict__)
+    logf, logw = _open_log(run_dir, start, LOG_FIELDS)
+    t = cfg.train
+    log(f"training {cfg.model_name} (VGN-style): {ds.info.train_scenes} train / {ds.info.val_scenes} val scenes, "
+        f"{sum(p.numel() for p in net.parameters())} parameters, device {device}, threads {torch.get_num_threads()}, "
+        f"steps {start}..{t.iterations}")
+    t0 = time.monotonic()
+    validation, step, stopped = None, start, False
+    try:
+        while step < t.iterations:
+            if t.max_minutes > 0 and time.monotonic() - t0 > 60.0 * t.max_minutes:
+                log(f"wall-clock limit of {t.max_minutes} min reached at step {step}: stopping")
+                stopped = True
+                break
+            if stop_at is not None and step >= stop_at:
+                log(f"stopping at step {step} (--stop-at)")
+                stopped = True
+                break
+            ts = time.monotonic()
+            lr = learning_rate(cfg, step)
+            for group in opt.param_groups:
+                group["lr"] = lr
+            scene, _ = scene_for_step(ds, cfg, step)
+            targets = _to(vgn_targets(scene), device)
+            out = vgn_loss(net(scene.normals.unsqueeze(0).to(device)), targets, scene.voxel_size_m)
+            if not torch.isfinite(out["loss"]):
+                raise RunError(f"non-finite loss at step {step} (scene {scene.index})")
+            opt.zero_grad(set_to_none=True)
+            out["loss"].backward()
+            opt.step()
+            step += 1
+            secs = time.monotonic() - ts
+            vals = {k: float(v.detach()) if isinstance(v, torch.Tensor) else v for k, v in out.items()}
+            row = {k: f"{vals[k]:.6g}" for k in LOG_FIELDS if k in vals}
+            row.update(step=step, lr=f"{lr:.6g}", seconds=f"{secs:.3f}",
+                       elapsed_s=f"{elapsed0 + time.monotonic() - t0:.1f}")
+            logw.writerow(row)
+            if step % t.log_every == 0 or step == t.iterations:
+                logf.flush()
+                log(f"step {step}/{t.iterations} loss {vals['loss']:.4f} quality {vals['quality']:.4f} "
+                    f"rotation {vals['rotation']:.4f} width {vals['width']:.3f} positives {vals['positives']:.0f} "
+                    f"lr {lr:.2e} {secs:.2f} s/step")
+            if t.validate_every > 0 and step % t.validate_every == 0 and step < t.iterations:
+                validation = evaluate_vgn(net, ds, cfg, device, t.max_val_scenes)
+                log(f"validation @ {step}: {validation}")
+            if t.checkpoint_every > 0 and step % t.checkpoint_every == 0:
+                save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed0 + time.monotonic() - t0)
+    finally:
+        logf.close()
+    validation = evaluate_vgn(net, ds, cfg, device, t.max_val_scenes)
+    log(f"validation @ {step}: {validation}")
+    write_json(run_dir / "validation.json", {"step": step, **validation})
+    save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed0 + time.monotonic() - t0)
+    if export:
+        ref = ds.root / (ds.val_entries or ds.train_entries)[0]["file"]
+        export_vgn(net.cpu(), cfg, ds.info, run_dir / "model", step, validation, ref, log=log)
+        log(f"exported {run_dir / 'model'}")
+    if stopped:
+        log("stopped early; continue with --resume")
+    return validation
+
+
+def build_vgn_card(cfg: Config, info: DatasetInfo, step: int, validation: dict | None, sha: str) -> dict[str, Any]:
+    """``card.json`` of a VGN-style model directory."""
+    from .export import torch_version
+
+    return {
+        "format": VGN_CARD_FORMAT,
+        "format_version": VGN_FORMAT_VERSION,
+        "name": cfg.name or f"psgrasp-vgn-b{cfg.model.base_channels}",
+        "variant": "vgn",
+        "generator": f"psgrasp_training {__version__} (torch {torch_version()})",
+        "files": {"vgn": {"path": "vgn.onnx", "sha256": sha}},
+        "grid": {"dims": list(info.dims), "voxel_size_m": info.voxel_size_m, "input": "normals", "input_channels": 3},
+        "gripper": {"max_opening_m": info.max_opening_m, "approach_depth_m": info.approach_depth_m},
+        "network": {"channels": [cfg.model.base_channels * 2**i for i in range(3)]},
+        "training": {"dataset_manifest_sha256": info.manifest_sha256, "dataset_path": info.path,
+                     "scenes": info.train_scenes, "iterations": step, "seed": cfg.seed, "config": cfg.to_dict()},
+        "validation": validation,
+    }
+
+
+def export_vgn(net: VgnNet, cfg: Config, info: DatasetInfo, out_dir: Path, step: int = 0,
+               validation: dict | None = None, reference_scene: Path | None = None,
+               reference_normals: torch.Tensor | None = None, atol: float = 1e-5, rtol: float = 1e-5,
+               log=print) -> dict[str, Any]:
+    """Export ``vgn.onnx`` + ``card.json`` (+ ``reference.safetensors`` for a reference input),
+    checked with onnxruntime against PyTorch before the directory is renamed into place."""
+    from safetensors.torch import save_file
+
+    from .export import ExportError, _check, _export_onnx, _ort_session, _random_normal_grid, sha256_bytes
+
+    out_dir = Path(out_dir)
+    net = net.cpu().eval()
+    if reference_scene is not None:
+        scene = read_scene(reference_scene)
+        if scene.dims != list(info.dims):
+            raise ExportError(f"reference scene {reference_scene} has grid {scene.dims}, the model {info.dims}")
+        normal_grid = scene.normals.unsqueeze(0).contiguous()
+    elif reference_normals is not None:
+        normal_grid = reference_normals.reshape(1, 3, *info.dims).contiguous()
+    else:
+        normal_grid = _random_normal_grid(list(info.dims), cfg.seed)
+    tmp_dir = out_dir.with_name(f".{out_dir.name}.tmp-{os.getpid()}")
+    if tmp_dir.exists():
+        shutil.rmtree(tmp_dir)
+    tmp_dir.mkdir(parents=True)
+    try:
+        path = tmp_dir / "vgn.onnx"
+        module = VgnExport(net, info.voxel_size_m).eval()
+        with torch.no_grad():
+            _export_onnx(module, (normal_grid,), path, ["normal_grid"], list(VGN_OUTPUTS), None)
+            ours = module(normal_grid)
+            theirs = _ort_session(path).run(None, {"normal_grid": normal_grid.numpy()})
+        diff = max(_check(n, o.numpy(), t, atol, rtol) for n, o, t in zip(VGN_OUTPUTS, ours, theirs))
+        log(f"onnxruntime check passed: max abs diff {diff:.3g}")
+        card = build_vgn_card(cfg, info, step, validation, sha256_bytes(path.read_bytes()))
+        card["export_check"] = {"onnxruntime_max_abs_diff": diff, "atol": atol, "rtol": rtol}
+        (tmp_dir / "card.json").write_text(json.dumps(card, indent=2) + "\n")
+        if reference_scene is not None or reference_normals is not None:
+            tensors = {"normal_grid": normal_grid, **dict(zip(VGN_OUTPUTS, ours))}
+            save_file({k: v.detach().float().contiguous() for k, v in tensors.items()},
+                      str(tmp_dir / "reference.safetensors"),
+                      metadata={"psgrasp_reference": json.dumps({"scene": str(reference_scene or "synthetic")})})
+        for f in tmp_dir.iterdir():
+            f.chmod(0o644)
+        tmp_dir.chmod(0o755)
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp_dir, out_dir)
+    finally:
+        if tmp_dir.exists():
+            shutil.rmtree(tmp_dir)
+    return card
+
+
+def export_vgn_run(run_dir: Path, out_dir: Path, reference_scene: Path | None = None, checkpoint: str = "latest.pt",
+                   log=print) -> dict[str, Any]:
+    """Export a checkpoint of a VGN-style run directory."""
+    state = load_checkpoint(run_dir, checkpoint)
+    cfg: Config = state["config"]
+    net = VgnNet(cfg.model.base_channels)
+    net.load_state_dict(state["model"])
+    return export_vgn(net, cfg, state["dataset"], out_dir, state["step"], state.get("validation"), reference_scene,
+                      log=log)
+
