@@ -367,7 +367,8 @@ pub fn run_inference(args: StageArgs) -> Result<()> {
         .inference
         .clone()
         .with_bin_interior_contacts(&cfg.bin, 0.005);
-    // A learned model whose card does not match the workspace or gripper fails here, at start-up.
+    // A model (learned or VGN) whose card does not match the workspace or gripper fails here, at
+    // start-up.
     let mut backend =
         psgrasp_inference::backend_for_workspace(&backend_cfg, &cfg.workspace, cfg.gripper)?;
     ctx.attach_inputs(&[(&grid_sub, cfg.pipeline.workers.fusion as usize)])?;

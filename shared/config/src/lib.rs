@@ -249,7 +249,7 @@ impl PoseConfig {
 
 impl PipelineConfig {
     /// Loads and validates a TOML file.
-    /// A learned backend's relative `model_dir` and `ort_library` are taken relative to the
+    /// A learned or VGN backend's relative `model_dir` and `ort_library` are taken relative to the
     /// file's directory (so `config/default.toml` names `../models/default`), which makes the
     /// file work from any working directory; they are stored as absolute paths.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
@@ -267,18 +267,9 @@ impl PipelineConfig {
         Ok(cfg)
     }
 
-    /// Joins the learned backend's relative paths onto `base` (see [`PipelineConfig::load`]).
+    /// Joins the model backend's relative paths onto `base` (see [`PipelineConfig::load`]).
     fn resolve_paths(&mut self, base: &Path) {
-        if let BackendConfig::Learned(l) = &mut self.inference {
-            if l.model_dir.is_relative() {
-                l.model_dir = base.join(&l.model_dir);
-            }
-            if let Some(lib) = &mut l.ort_library {
-                if lib.is_relative() {
-                    *lib = base.join(&*lib);
-                }
-            }
-        }
+        self.inference.resolve_paths(base);
     }
 
     /// Parses and validates TOML text (`origin` names it in errors).
@@ -487,6 +478,29 @@ mod tests {
         };
         assert_eq!(l.model_dir, dir.join("config/../models/m"));
         assert_eq!(l.ort_library, Some(PathBuf::from("/abs/libonnxruntime.so")));
+    }
+
+    #[test]
+    fn vgn_model_paths_are_relative_to_the_config_file() {
+        let dir = std::env::temp_dir().join(format!("psgrasp-config-vgn-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("config")).unwrap();
+        let file = dir.join("config/x.toml");
+        std::fs::write(
+            &file,
+            "[inference]\nkind = \"vgn\"\nmodel_dir = \"../models/vgn\"\nort_library = \"lib/libonnxruntime.so\"\nquality_threshold = 0.8\n",
+        )
+        .unwrap();
+        let cfg = PipelineConfig::load(&file).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let BackendConfig::Vgn(v) = cfg.inference else {
+            panic!("expected a vgn backend");
+        };
+        assert_eq!(v.model_dir, dir.join("config/../models/vgn"));
+        assert_eq!(
+            v.ort_library,
+            Some(dir.join("config/lib/libonnxruntime.so"))
+        );
+        assert_eq!(v.quality_threshold, 0.8);
     }
 
     #[test]

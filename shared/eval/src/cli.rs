@@ -32,7 +32,7 @@ pub struct EvalArgs {
     #[arg(long = "detector", value_delimiter = ',')]
     pub detectors: Vec<String>,
     /// Detector list (TOML `[[detector]]` tables with `name`, `label`, `backend`). Default: the
-    /// analytic baseline plus one learned detector per model directory under --models-dir.
+    /// analytic baseline plus one learned or VGN detector per model directory under --models-dir.
     #[arg(long)]
     pub detectors_file: Option<PathBuf>,
     /// Where the default detector list looks for model directories (folders with `card.json`).

@@ -13,10 +13,16 @@
 //! name = "w-kappa-8app"
 //! label = "Ours (w κ + 8app)"
 //! backend = { kind = "learned", model_dir = "models/default" }
+//!
+//! [[detector]]
+//! name = "vgn"
+//! label = "VGN (retrained)"
+//! backend = { kind = "vgn", model_dir = "models/vgn" }
 //! ```
 //!
-//! Without a file, [`default_detectors`] gives the analytic baseline plus one learned detector per
-//! model directory (a folder with a `card.json`) under `models/`.
+//! Without a file, [`default_detectors`] gives the analytic baseline plus one detector per model
+//! directory (a folder with a `card.json`) under `models/`: a VGN detector for a VGN card, a
+//! learned one otherwise.
 use crate::protocol::ProtocolConfig;
 use crate::EvalError;
 use psgrasp_inference::{backend_for_workspace, BackendConfig, InferenceBackend, LearnedConfig};
@@ -66,6 +72,17 @@ impl DetectorSpec {
                 threads: 1,
                 ..Default::default()
             }),
+        }
+    }
+
+    /// A detector for the model directory `dir`: VGN for a VGN card, learned otherwise
+    /// ([`BackendConfig::for_model_dir`]), with one runtime thread.
+    pub fn for_model_dir(name: &str, dir: PathBuf) -> Self {
+        Self {
+            name: name.into(),
+            label: None,
+            // One runtime thread: the evaluation runs scenes in parallel (`--jobs`).
+            backend: BackendConfig::for_model_dir(&dir, 1),
         }
     }
 
@@ -172,9 +189,10 @@ impl DetectorList {
     }
 }
 
-/// The built-in detector list: the analytic baseline, then one learned detector per model
-/// directory under `models_dir` (a sub-folder holding `card.json`, named after the folder, in
-/// name order). A missing `models_dir` gives the analytic baseline only.
+/// The built-in detector list: the analytic baseline, then one detector per model directory
+/// under `models_dir` (a sub-folder holding `card.json`, named after the folder, in name order;
+/// VGN for a VGN card, learned otherwise). A missing `models_dir` gives the analytic baseline
+/// only.
 pub fn default_detectors(models_dir: &Path) -> DetectorList {
     let mut detectors = vec![DetectorSpec::analytic()];
     let mut dirs: Vec<(String, PathBuf)> = std::fs::read_dir(models_dir)
@@ -193,7 +211,7 @@ pub fn default_detectors(models_dir: &Path) -> DetectorList {
         .collect();
     dirs.sort();
     for (name, path) in dirs {
-        let spec = DetectorSpec::learned(&name, path);
+        let spec = DetectorSpec::for_model_dir(&name, path);
         if spec.validate().is_ok() && name != "analytic" {
             detectors.push(spec);
         }
@@ -210,10 +228,17 @@ mod tests {
         let list = DetectorList::from_toml(
             "[[detector]]\nname = \"analytic\"\nbackend = { kind = \"analytic\", min_quality = 0.6 }\n\
              [[detector]]\nname = \"w-kappa-1app\"\nlabel = \"Ours (w κ + 1app)\"\n\
-             backend = { kind = \"learned\", model_dir = \"models/1app\" }\n",
+             backend = { kind = \"learned\", model_dir = \"models/1app\" }\n\
+             [[detector]]\nname = \"vgn\"\n\
+             backend = { kind = \"vgn\", model_dir = \"models/vgn\", quality_threshold = 0.8 }\n",
         )
         .unwrap();
-        assert_eq!(list.detectors.len(), 2);
+        assert_eq!(list.detectors.len(), 3);
+        let BackendConfig::Vgn(v) = &list.detectors[2].backend else {
+            panic!("vgn expected")
+        };
+        assert_eq!(v.quality_threshold, 0.8);
+        assert_eq!(v.model_dir, PathBuf::from("models/vgn"));
         let BackendConfig::Analytic(a) = &list.detectors[0].backend else {
             panic!("analytic expected")
         };
@@ -252,14 +277,26 @@ mod tests {
             std::fs::create_dir(dir.path().join(name)).unwrap();
             std::fs::write(dir.path().join(name).join("card.json"), "{}").unwrap();
         }
+        std::fs::create_dir(dir.path().join("vgn")).unwrap();
+        std::fs::write(
+            dir.path().join("vgn/card.json"),
+            "{\"format\": \"psgrasp-vgn-model\"}",
+        )
+        .unwrap();
         std::fs::create_dir(dir.path().join("no-card")).unwrap();
         let list = default_detectors(dir.path());
         let names: Vec<&str> = list.detectors.iter().map(|d| d.name.as_str()).collect();
-        assert_eq!(names, ["analytic", "w-kappa-8app", "wo-kappa-1app"]);
-        let BackendConfig::Learned(l) = &list.detectors[1].backend else {
+        assert_eq!(names, ["analytic", "vgn", "w-kappa-8app", "wo-kappa-1app"]);
+        let BackendConfig::Learned(l) = &list.detectors[2].backend else {
             panic!("learned expected")
         };
         assert_eq!(l.model_dir, dir.path().join("w-kappa-8app"));
+        assert_eq!(l.threads, 1);
+        let BackendConfig::Vgn(v) = &list.detectors[1].backend else {
+            panic!("vgn expected")
+        };
+        assert_eq!(v.model_dir, dir.path().join("vgn"));
+        assert_eq!(v.threads, 1);
     }
 
     #[test]

@@ -20,22 +20,29 @@
 //! The learned backend ([`LearnedBackend`], `kind = "learned"`) runs the paper's two-stage network
 //! exported to ONNX (a model directory with a checked model card) on tract or, with the cargo
 //! feature `ort`, ONNX Runtime; see [`learned`].
+//!
+//! The VGN backend ([`VgnBackend`], `kind = "vgn"`) is the volumetric baseline of Breyer et al.
+//! (per-voxel quality, orientation and width from a fully convolutional network, retrained on
+//! psgrasp's data), run on the same runtimes with VGN's post-processing; see [`vgn`].
 #![warn(missing_docs)]
 
 pub mod analytic;
 pub mod learned;
 pub mod occupancy;
 pub mod synthetic;
+pub mod vgn;
 
 pub use analytic::{AnalyticBackend, AnalyticConfig, AnalyticStats, ContactRegion};
 pub use learned::{
     LearnedBackend, LearnedConfig, LearnedModel, ModelCard, ModelError, RuntimeKind, StageTimings,
 };
 pub use occupancy::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
+pub use vgn::{VgnBackend, VgnCard, VgnConfig, VgnTimings};
 
 use psgrasp_fusion::NormalGridView;
 use psgrasp_geometry::{BinModel, GeometryError, GraspConfiguration, GripperModel, Workspace};
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// Largest |normalised TSDF| accepted by [`validate_grid`]; values are defined in [−1, 1] and this
 /// leaves room for rounding in producers.
@@ -87,7 +94,8 @@ pub enum InferenceError {
         /// What the valid range is.
         reason: &'static str,
     },
-    /// A learned model could not be loaded or run (card mismatch, corrupt file, runtime error).
+    /// A learned or VGN model could not be loaded or run (card mismatch, corrupt file, runtime
+    /// error).
     #[error("learned model: {0}")]
     Model(#[from] ModelError),
     /// A backend failed for a reason of its own (model file, runtime, device ...).
@@ -122,6 +130,8 @@ pub enum BackendConfig {
     Analytic(AnalyticConfig),
     /// The learned ONNX backend ([`LearnedBackend`]).
     Learned(LearnedConfig),
+    /// The VGN-style volumetric baseline ([`VgnBackend`]).
+    Vgn(VgnConfig),
 }
 
 impl Default for BackendConfig {
@@ -136,6 +146,44 @@ impl BackendConfig {
         match self {
             Self::Analytic(_) => "analytic",
             Self::Learned(_) => "learned",
+            Self::Vgn(_) => "vgn",
+        }
+    }
+
+    /// The configuration that runs the model directory `dir` with `threads` runtime threads:
+    /// `kind = "vgn"` for a VGN card ([`vgn::is_vgn_model_dir`]), otherwise `kind = "learned"`
+    /// (whose checks report what is wrong with any other card). Other settings are defaults.
+    pub fn for_model_dir(dir: &Path, threads: usize) -> Self {
+        if vgn::is_vgn_model_dir(dir) {
+            Self::Vgn(VgnConfig {
+                model_dir: dir.to_owned(),
+                threads,
+                ..Default::default()
+            })
+        } else {
+            Self::Learned(LearnedConfig {
+                model_dir: dir.to_owned(),
+                threads,
+                ..Default::default()
+            })
+        }
+    }
+
+    /// Joins a relative model directory and `ort_library` onto `base` (the directory of the
+    /// file the configuration was read from); absolute paths and model-free kinds are unchanged.
+    pub fn resolve_paths(&mut self, base: &Path) {
+        let (model_dir, ort_library) = match self {
+            Self::Analytic(_) => return,
+            Self::Learned(l) => (&mut l.model_dir, &mut l.ort_library),
+            Self::Vgn(v) => (&mut v.model_dir, &mut v.ort_library),
+        };
+        if model_dir.is_relative() {
+            *model_dir = base.join(&*model_dir);
+        }
+        if let Some(lib) = ort_library {
+            if lib.is_relative() {
+                *lib = base.join(&*lib);
+            }
         }
     }
 
@@ -151,8 +199,8 @@ impl BackendConfig {
     }
 }
 
-/// Builds the backend described by `cfg` for `gripper`, validating both. A learned model's card
-/// is checked against `gripper` here and against each grid's workspace per frame; prefer
+/// Builds the backend described by `cfg` for `gripper`, validating both. A model's card (learned
+/// or VGN) is checked against `gripper` here and against each grid's workspace per frame; prefer
 /// [`backend_for_workspace`] where the workspace is known, so a mismatch fails at start-up.
 pub fn backend_from_config(
     cfg: &BackendConfig,
@@ -164,11 +212,15 @@ pub fn backend_from_config(
             c.clone(),
             gripper,
         )?)),
+        BackendConfig::Vgn(c) => Ok(Box::new(VgnBackend::for_card_workspace(
+            c.clone(),
+            gripper,
+        )?)),
     }
 }
 
-/// Builds the backend described by `cfg` for the pipeline's `workspace` and `gripper`; a learned
-/// model whose card records another grid or gripper is refused here.
+/// Builds the backend described by `cfg` for the pipeline's `workspace` and `gripper`; a model
+/// (learned or VGN) whose card records another grid or gripper is refused here.
 pub fn backend_for_workspace(
     cfg: &BackendConfig,
     workspace: &Workspace,
@@ -181,6 +233,7 @@ pub fn backend_for_workspace(
             workspace,
             gripper,
         )?)),
+        BackendConfig::Vgn(c) => Ok(Box::new(VgnBackend::new(c.clone(), workspace, gripper)?)),
     }
 }
 

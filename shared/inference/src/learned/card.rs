@@ -26,7 +26,7 @@ pub const CLASSES: [&str; 3] = ["empty", "contact", "gripper"];
 /// Sub-voxel points per contact voxel (2 per axis).
 pub const SUBVOXELS_PER_CONTACT: usize = 8;
 
-/// Errors of loading or running a learned model.
+/// Errors of loading or running a learned model (the learned backend's or a VGN model).
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
     /// A file of the model directory could not be read.
@@ -92,7 +92,7 @@ pub enum ModelError {
     /// An ONNX graph could not be parsed or prepared by the runtime.
     #[error("cannot load graph `{graph}` with {runtime}")]
     Graph {
-        /// `"unet"` or `"mlp"`.
+        /// `"unet"`, `"mlp"` (learned backend) or `"vgn"`.
         graph: &'static str,
         /// `"tract"` or `"ort"`.
         runtime: &'static str,
@@ -103,7 +103,7 @@ pub enum ModelError {
     /// A graph's inputs or outputs do not follow the interface contract (names, shapes).
     #[error("graph `{graph}` does not match the interface: {reason}")]
     GraphInterface {
-        /// `"unet"` or `"mlp"`.
+        /// `"unet"`, `"mlp"` (learned backend) or `"vgn"`.
         graph: &'static str,
         /// What differs.
         reason: String,
@@ -111,7 +111,7 @@ pub enum ModelError {
     /// Running a graph failed.
     #[error("running graph `{graph}` with {runtime} failed")]
     Run {
-        /// `"unet"` or `"mlp"`.
+        /// `"unet"`, `"mlp"` (learned backend) or `"vgn"`.
         graph: &'static str,
         /// `"tract"` or `"ort"`.
         runtime: &'static str,
@@ -319,23 +319,150 @@ fn close(a: f32, b: f32, tol: f32) -> bool {
     a.is_finite() && b.is_finite() && (a - b).abs() <= tol
 }
 
+/// Parses a card of any format from JSON text; `path` is only used in the error.
+pub(crate) fn card_from_json<T: serde::de::DeserializeOwned>(
+    text: &str,
+    path: &Path,
+) -> Result<T, ModelError> {
+    serde_json::from_str(text).map_err(|source| ModelError::CardJson {
+        path: path.to_owned(),
+        source,
+    })
+}
+
+/// Reads and parses `dir/card.json` of any format (no checks beyond the JSON schema).
+pub(crate) fn read_card<T: serde::de::DeserializeOwned>(dir: &Path) -> Result<T, ModelError> {
+    let path = dir.join(CARD_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|source| ModelError::Io {
+        path: path.clone(),
+        source,
+    })?;
+    card_from_json(&text, &path)
+}
+
+impl CardFile {
+    /// Checks the path (relative, inside the model directory) and the SHA-256 syntax; `field`
+    /// names the card entry in errors.
+    pub(crate) fn validate(&self, field: &'static str) -> Result<(), ModelError> {
+        check_relative_path(field, &self.path)?;
+        if self.sha256.len() != 64 || !self.sha256.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(invalid(field, "sha256 must be 64 hex digits"));
+        }
+        Ok(())
+    }
+
+    /// Reads the file from `dir`, refusing it if its SHA-256 differs from the card.
+    pub(crate) fn read_checked(&self, dir: &Path) -> Result<Vec<u8>, ModelError> {
+        let path = dir.join(&self.path);
+        let bytes = std::fs::read(&path).map_err(|source| ModelError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        let actual = sha256_hex(&bytes);
+        if !actual.eq_ignore_ascii_case(&self.sha256) {
+            return Err(ModelError::Sha256Mismatch {
+                path,
+                expected: self.sha256.clone(),
+                actual,
+            });
+        }
+        Ok(bytes)
+    }
+}
+
+impl CardGrid {
+    /// The workspace the model was trained for.
+    pub fn workspace(&self) -> Workspace {
+        Workspace {
+            dims: self.dims,
+            voxel_size_m: self.voxel_size_m,
+        }
+    }
+
+    /// Checks the input kind (`normals`, 3 channels) and that the grid is a valid workspace.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        if self.input != "normals" {
+            return Err(mismatch("grid.input", &self.input, "normals"));
+        }
+        if self.input_channels != 3 {
+            return Err(mismatch("grid.input_channels", self.input_channels, 3));
+        }
+        self.workspace()
+            .validate()
+            .map_err(|e| invalid("grid", e.to_string()))
+    }
+
+    /// Checks the grid dims and voxel size (within [`VOXEL_SIZE_REL_TOLERANCE`]) against
+    /// `workspace`.
+    pub fn check_workspace(&self, workspace: &Workspace) -> Result<(), ModelError> {
+        if self.dims != workspace.dims {
+            return Err(mismatch(
+                "grid.dims",
+                format!("{:?}", self.dims),
+                format!("{:?}", workspace.dims),
+            ));
+        }
+        let s = workspace.voxel_size_m;
+        if !close(self.voxel_size_m, s, VOXEL_SIZE_REL_TOLERANCE * s.abs()) {
+            return Err(mismatch("grid.voxel_size_m", self.voxel_size_m, s));
+        }
+        Ok(())
+    }
+}
+
+impl CardGripper {
+    /// Checks that the maximum opening is positive and the approach depth non-negative.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        if !(self.max_opening_m.is_finite() && self.max_opening_m > 0.0) {
+            return Err(invalid(
+                "gripper.max_opening_m",
+                "must be positive and finite",
+            ));
+        }
+        if !(self.approach_depth_m.is_finite() && self.approach_depth_m >= 0.0) {
+            return Err(invalid(
+                "gripper.approach_depth_m",
+                "must be finite and >= 0",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Checks the maximum opening and the approach depth (finger length − `tip_beyond_tcp_m`)
+    /// against `gripper`, within [`GRIPPER_TOLERANCE_M`].
+    pub fn check(&self, gripper: &GripperModel) -> Result<(), ModelError> {
+        if !close(
+            self.max_opening_m,
+            gripper.max_opening_m,
+            GRIPPER_TOLERANCE_M,
+        ) {
+            return Err(mismatch(
+                "gripper.max_opening_m",
+                self.max_opening_m,
+                gripper.max_opening_m,
+            ));
+        }
+        let depth = gripper.tcp_to_palm_m();
+        if !close(self.approach_depth_m, depth, GRIPPER_TOLERANCE_M) {
+            return Err(mismatch(
+                "gripper.approach_depth_m",
+                self.approach_depth_m,
+                depth,
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl ModelCard {
     /// Parses a card from JSON text; `path` is only used in the error.
     pub fn from_json(text: &str, path: &Path) -> Result<Self, ModelError> {
-        serde_json::from_str(text).map_err(|source| ModelError::CardJson {
-            path: path.to_owned(),
-            source,
-        })
+        card_from_json(text, path)
     }
 
     /// Reads and parses `dir/card.json` (no checks beyond the JSON schema).
     pub fn read(dir: &Path) -> Result<Self, ModelError> {
-        let path = dir.join(CARD_FILE);
-        let text = std::fs::read_to_string(&path).map_err(|source| ModelError::Io {
-            path: path.clone(),
-            source,
-        })?;
-        Self::from_json(&text, &path)
+        read_card(dir)
     }
 
     /// Level count L.
@@ -360,10 +487,7 @@ impl ModelCard {
 
     /// The workspace the model was trained for.
     pub fn workspace(&self) -> Workspace {
-        Workspace {
-            dims: self.grid.dims,
-            voxel_size_m: self.grid.voxel_size_m,
-        }
+        self.grid.workspace()
     }
 
     /// Checks the card on its own: format, version, internal consistency and value ranges.
@@ -378,24 +502,9 @@ impl ModelCard {
                 found: self.format_version,
             });
         }
-        for (field, f) in [
-            ("files.unet", &self.files.unet),
-            ("files.mlp", &self.files.mlp),
-        ] {
-            check_relative_path(field, &f.path)?;
-            if f.sha256.len() != 64 || !f.sha256.bytes().all(|b| b.is_ascii_hexdigit()) {
-                return Err(invalid(field, "sha256 must be 64 hex digits"));
-            }
-        }
-        if self.grid.input != "normals" {
-            return Err(mismatch("grid.input", &self.grid.input, "normals"));
-        }
-        if self.grid.input_channels != 3 {
-            return Err(mismatch("grid.input_channels", self.grid.input_channels, 3));
-        }
-        self.workspace()
-            .validate()
-            .map_err(|e| invalid("grid", e.to_string()))?;
+        self.files.unet.validate("files.unet")?;
+        self.files.mlp.validate("files.mlp")?;
+        self.grid.validate()?;
         if self.classes.iter().map(String::as_str).ne(CLASSES) {
             return Err(mismatch(
                 "classes",
@@ -452,19 +561,7 @@ impl ModelCard {
                 return Err(invalid(field, "must lie in [0, 1]"));
             }
         }
-        if !(self.gripper.max_opening_m.is_finite() && self.gripper.max_opening_m > 0.0) {
-            return Err(invalid(
-                "gripper.max_opening_m",
-                "must be positive and finite",
-            ));
-        }
-        if !(self.gripper.approach_depth_m.is_finite() && self.gripper.approach_depth_m >= 0.0) {
-            return Err(invalid(
-                "gripper.approach_depth_m",
-                "must be finite and >= 0",
-            ));
-        }
-        Ok(())
+        self.gripper.validate()
     }
 
     /// Checks the card against the pipeline: grid dims and voxel size, the approach count and
@@ -481,22 +578,7 @@ impl ModelCard {
 
     /// Checks the grid dims and voxel size against `workspace`.
     pub fn check_workspace(&self, workspace: &Workspace) -> Result<(), ModelError> {
-        if self.grid.dims != workspace.dims {
-            return Err(mismatch(
-                "grid.dims",
-                format!("{:?}", self.grid.dims),
-                format!("{:?}", workspace.dims),
-            ));
-        }
-        let s = workspace.voxel_size_m;
-        if !close(
-            self.grid.voxel_size_m,
-            s,
-            VOXEL_SIZE_REL_TOLERANCE * s.abs(),
-        ) {
-            return Err(mismatch("grid.voxel_size_m", self.grid.voxel_size_m, s));
-        }
-        Ok(())
+        self.grid.check_workspace(workspace)
     }
 
     /// Checks the approach count and angle range, the gripper's maximum opening and approach
@@ -527,25 +609,7 @@ impl ModelCard {
                 hi,
             ));
         }
-        if !close(
-            self.gripper.max_opening_m,
-            gripper.max_opening_m,
-            GRIPPER_TOLERANCE_M,
-        ) {
-            return Err(mismatch(
-                "gripper.max_opening_m",
-                self.gripper.max_opening_m,
-                gripper.max_opening_m,
-            ));
-        }
-        let depth = gripper.tcp_to_palm_m();
-        if !close(self.gripper.approach_depth_m, depth, GRIPPER_TOLERANCE_M) {
-            return Err(mismatch(
-                "gripper.approach_depth_m",
-                self.gripper.approach_depth_m,
-                depth,
-            ));
-        }
+        self.gripper.check(gripper)?;
         if self.inference.subvoxels_per_contact as usize != SUBVOXELS_PER_CONTACT {
             return Err(mismatch(
                 "inference.subvoxels_per_contact",
@@ -583,23 +647,6 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
     s
 }
 
-fn read_checked(dir: &Path, file: &CardFile) -> Result<Vec<u8>, ModelError> {
-    let path = dir.join(&file.path);
-    let bytes = std::fs::read(&path).map_err(|source| ModelError::Io {
-        path: path.clone(),
-        source,
-    })?;
-    let actual = sha256_hex(&bytes);
-    if !actual.eq_ignore_ascii_case(&file.sha256) {
-        return Err(ModelError::Sha256Mismatch {
-            path,
-            expected: file.sha256.clone(),
-            actual,
-        });
-    }
-    Ok(bytes)
-}
-
 /// Loads a model directory: reads `card.json`, validates it ([`ModelCard::validate`]), checks it
 /// against `workspace` and `gripper` ([`ModelCard::check_pipeline`]) and reads both ONNX files,
 /// refusing any whose SHA-256 differs from the card. The graphs are not parsed here.
@@ -611,8 +658,8 @@ pub fn load_model_dir(
     let card = ModelCard::read(dir)?;
     card.validate()?;
     card.check_pipeline(workspace, gripper)?;
-    let unet_onnx = read_checked(dir, &card.files.unet)?;
-    let mlp_onnx = read_checked(dir, &card.files.mlp)?;
+    let unet_onnx = card.files.unet.read_checked(dir)?;
+    let mlp_onnx = card.files.mlp.read_checked(dir)?;
     Ok(ModelFiles {
         dir: dir.to_owned(),
         card,

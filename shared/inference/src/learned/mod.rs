@@ -82,9 +82,7 @@ impl LearnedConfig {
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), InferenceError> {
         let bad = |field, reason| Err(InferenceError::InvalidConfig { field, reason });
-        if self.model_dir.as_os_str().is_empty() {
-            return bad("model_dir", "must name a directory");
-        }
+        check_model_source(&self.model_dir, self.ort_library.as_deref(), self.threads)?;
         if !(1..=1 << 20).contains(&self.max_contact_voxels) {
             return bad("max_contact_voxels", "must lie in 1..=1048576");
         }
@@ -96,18 +94,28 @@ impl LearnedConfig {
         if !(1..=1 << 20).contains(&self.mlp_batch) {
             return bad("mlp_batch", "must lie in 1..=1048576");
         }
-        if self.threads > 1024 {
-            return bad("threads", "must lie in 0..=1024");
-        }
-        if self
-            .ort_library
-            .as_ref()
-            .is_some_and(|p| p.as_os_str().is_empty())
-        {
-            return bad("ort_library", "must name a file when set");
-        }
         Ok(())
     }
+}
+
+/// Checks the settings every ONNX backend shares: a model directory, an `ort_library` that names
+/// a file when set, and `threads` in 0..=1024.
+pub(crate) fn check_model_source(
+    model_dir: &Path,
+    ort_library: Option<&Path>,
+    threads: usize,
+) -> Result<(), InferenceError> {
+    let bad = |field, reason| Err(InferenceError::InvalidConfig { field, reason });
+    if model_dir.as_os_str().is_empty() {
+        return bad("model_dir", "must name a directory");
+    }
+    if threads > 1024 {
+        return bad("threads", "must lie in 0..=1024");
+    }
+    if ort_library.is_some_and(|p| p.as_os_str().is_empty()) {
+        return bad("ort_library", "must name a file when set");
+    }
+    Ok(())
 }
 
 /// Wall time of each stage of the last frame and what it processed.
@@ -178,10 +186,7 @@ impl LearnedModel {
             #[cfg(not(feature = "ort"))]
             RuntimeKind::Ort => {
                 let _ = ort_library;
-                return Err(ModelError::RuntimeUnavailable {
-                    runtime: "ort",
-                    reason: "this build has no ONNX Runtime support (cargo feature `ort`)".into(),
-                });
+                return Err(runtime::ort_not_built());
             }
         };
         Ok(Self {

@@ -3,7 +3,8 @@
 //! A [`GraphRuntime`] runs the two graphs of a checked model directory ([`ModelFiles`]):
 //! `unet.onnx` on the normal grid and `mlp.onnx` on a `[N, F]` feature matrix. Graph inputs and
 //! outputs are found by their contract names and their shapes are checked at load (as far as
-//! the runtime reports them) and on every run.
+//! the runtime reports them) and on every run. The single-input graph wrapper used for the U-Net
+//! also runs the VGN backend's network ([`crate::vgn`]).
 use super::card::{ModelCard, ModelError, ModelFiles};
 use super::decode::HeadOutputs;
 use std::sync::Arc;
@@ -182,6 +183,21 @@ fn expected_unet_names(card: &ModelCard) -> Vec<String> {
         .collect()
 }
 
+/// Splits the U-Net outputs (in [`expected_unet_names`] order) and checks their shapes.
+fn unet_outputs(card: &ModelCard, tensors: Vec<OutputTensor>) -> Result<UnetOutputs, ModelError> {
+    let mut it = tensors.into_iter();
+    let label_logits = it.next().ok_or_else(|| ModelError::GraphInterface {
+        graph: "unet",
+        reason: "no outputs".into(),
+    })?;
+    let out = UnetOutputs {
+        label_logits,
+        features: it.collect(),
+    };
+    check_unet_outputs(card, &out)?;
+    Ok(out)
+}
+
 fn check_unet_outputs(card: &ModelCard, out: &UnetOutputs) -> Result<(), ModelError> {
     let shapes = expected_unet_shapes(card);
     let names = expected_unet_names(card);
@@ -278,6 +294,15 @@ fn tract_err(graph: &'static str) -> impl Fn(TractError) -> ModelError {
     }
 }
 
+/// The error of a graph whose loading panicked inside tract.
+fn tract_load_panic(graph: &'static str) -> impl FnOnce(String) -> ModelError {
+    move |m| ModelError::Graph {
+        graph,
+        runtime: "tract",
+        source: Box::new(StringError(format!("tract panicked: {m}"))),
+    }
+}
+
 #[derive(Debug)]
 struct StringError(String);
 impl std::fmt::Display for StringError {
@@ -287,16 +312,208 @@ impl std::fmt::Display for StringError {
 }
 impl std::error::Error for StringError {}
 
+/// The executor of tract's matrix products: the calling thread for `threads` = 1, else a private
+/// pool of `threads` threads (0 = all cores).
+fn tract_executor(threads: usize) -> Result<tract_linalg::multithread::Executor, ModelError> {
+    let threads = resolve_threads(threads);
+    if threads <= 1 {
+        return Ok(tract_linalg::multithread::Executor::SingleThread);
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|i| format!("psgrasp-tract-{i}"))
+        .build()
+        .map_err(|e| ModelError::RuntimeUnavailable {
+            runtime: "tract",
+            reason: format!("cannot start {threads} threads: {e}"),
+        })?;
+    Ok(tract_linalg::multithread::Executor::MultiThread(Arc::new(
+        pool,
+    )))
+}
+
+/// Runs a tract plan on `executor`, turning errors and panics into [`ModelError::Run`].
+fn run_tract(
+    plan: &Arc<TypedRunnableModel>,
+    executor: &tract_linalg::multithread::Executor,
+    graph: &'static str,
+    input: Tensor,
+) -> Result<TVec<TValue>, ModelError> {
+    let executor = executor.clone();
+    no_panic(
+        || {
+            tract_linalg::multithread::multithread_tract_scope(executor, || {
+                plan.run(tvec!(input.into_tvalue()))
+            })
+            .map_err(|e| ModelError::Run {
+                graph,
+                runtime: "tract",
+                source: e.into(),
+            })
+        },
+        |m| ModelError::Run {
+            graph,
+            runtime: "tract",
+            source: Box::new(StringError(format!("tract panicked: {m}"))),
+        },
+    )
+}
+
+/// The interface of a graph with one fixed-shape f32 input and named f32 outputs.
+#[derive(Debug, Clone)]
+pub(crate) struct GraphSpec {
+    /// Graph name for errors (`"unet"`, `"vgn"`).
+    pub graph: &'static str,
+    /// Name of the single input.
+    pub input_name: &'static str,
+    /// Shape of the input.
+    pub input_shape: Vec<usize>,
+    /// Outputs to take, in the order [`FixedGraph::run`] returns them.
+    pub output_names: Vec<String>,
+}
+
+/// A graph with one fixed-shape f32 input and named f32 outputs (the U-Net, the VGN network),
+/// on tract or ONNX Runtime. The input name is checked at load, the outputs are found by name.
+pub(crate) struct FixedGraph {
+    spec: GraphSpec,
+    engine: Engine,
+}
+
+enum Engine {
+    Tract {
+        plan: Arc<TypedRunnableModel>,
+        /// Model output index of each of `spec.output_names`.
+        outputs: Vec<usize>,
+        executor: tract_linalg::multithread::Executor,
+    },
+    #[cfg(feature = "ort")]
+    Ort(ort::session::Session),
+}
+
+impl FixedGraph {
+    /// Loads `bytes` on the runtime `kind` (`ort_library` and `threads` as in the configs).
+    pub(crate) fn load(
+        kind: RuntimeKind,
+        bytes: &[u8],
+        spec: GraphSpec,
+        ort_library: Option<&std::path::Path>,
+        threads: usize,
+    ) -> Result<Self, ModelError> {
+        match kind {
+            RuntimeKind::Tract => Self::tract(bytes, spec, tract_executor(threads)?),
+            #[cfg(feature = "ort")]
+            RuntimeKind::Ort => {
+                let env = ort_runtime::environment(ort_library)?;
+                Self::ort(&env, bytes, spec, threads)
+            }
+            #[cfg(not(feature = "ort"))]
+            RuntimeKind::Ort => {
+                let _ = (ort_library, spec);
+                Err(ort_not_built())
+            }
+        }
+    }
+
+    /// Loads `bytes` with tract, optimised for the fixed input shape.
+    fn tract(
+        bytes: &[u8],
+        spec: GraphSpec,
+        executor: tract_linalg::multithread::Executor,
+    ) -> Result<Self, ModelError> {
+        let (plan, outputs) = no_panic(
+            || {
+                load_tract_graph(
+                    bytes,
+                    spec.graph,
+                    spec.input_name,
+                    |_| f32::fact(&spec.input_shape).into(),
+                    &spec.output_names,
+                )
+            },
+            tract_load_panic(spec.graph),
+        )?;
+        Ok(Self {
+            spec,
+            engine: Engine::Tract {
+                plan,
+                outputs,
+                executor,
+            },
+        })
+    }
+
+    /// The runtime's name (`"tract"` or `"ort"`).
+    pub(crate) fn runtime_name(&self) -> &'static str {
+        match self.engine {
+            Engine::Tract { .. } => "tract",
+            #[cfg(feature = "ort")]
+            Engine::Ort(_) => "ort",
+        }
+    }
+
+    /// Runs the graph on `input` (the fixed shape, row-major); the outputs come in the order
+    /// of the names given at load, their shapes unchecked.
+    pub(crate) fn run(&mut self, input: &[f32]) -> Result<Vec<OutputTensor>, ModelError> {
+        let spec = &self.spec;
+        let graph = spec.graph;
+        if input.len() != spec.input_shape.iter().product::<usize>() {
+            return Err(ModelError::GraphInterface {
+                graph,
+                reason: format!(
+                    "input of {} values for shape {:?}",
+                    input.len(),
+                    spec.input_shape
+                ),
+            });
+        }
+        match &mut self.engine {
+            Engine::Tract {
+                plan,
+                outputs,
+                executor,
+            } => {
+                let tensor = Tensor::from_shape(&spec.input_shape, input).map_err(|e| {
+                    ModelError::GraphInterface {
+                        graph,
+                        reason: format!("input of {} values: {e}", input.len()),
+                    }
+                })?;
+                let values = run_tract(plan, executor, graph, tensor)?;
+                let mut taken: Vec<Option<TValue>> = values.into_iter().map(Some).collect();
+                let mut tensors = Vec::with_capacity(spec.output_names.len());
+                for (name, &ix) in spec.output_names.iter().zip(outputs.iter()) {
+                    let v = taken.get_mut(ix).and_then(Option::take).ok_or_else(|| {
+                        ModelError::GraphInterface {
+                            graph,
+                            reason: format!("output `{name}` missing"),
+                        }
+                    })?;
+                    tensors.push(OutputTensor::from_tract(v, graph, name)?);
+                }
+                Ok(tensors)
+            }
+            #[cfg(feature = "ort")]
+            Engine::Ort(session) => ort_runtime::run_fixed(session, spec, input),
+        }
+    }
+}
+
+/// The error for `runtime = "ort"` in a build without the `ort` feature.
+#[cfg(not(feature = "ort"))]
+pub(crate) fn ort_not_built() -> ModelError {
+    ModelError::RuntimeUnavailable {
+        runtime: "ort",
+        reason: "this build has no ONNX Runtime support (cargo feature `ort`)".into(),
+    }
+}
+
 /// The tract runtime: both graphs made runnable once at load (static 64³ U-Net input, symbolic
 /// MLP batch), matrix products on a private thread pool.
 pub struct TractRuntime {
-    unet: Arc<TypedRunnableModel>,
+    unet: FixedGraph,
     mlp: Arc<TypedRunnableModel>,
-    /// Model output index of `label_logits`, `enc0`, …
-    unet_outputs: Vec<usize>,
     /// Model output index of each of [`MLP_OUTPUTS`].
     mlp_outputs: [usize; 5],
-    unet_input_shape: [usize; 5],
     feature_dim: usize,
     card: ModelCard,
     executor: tract_linalg::multithread::Executor,
@@ -366,25 +583,8 @@ impl TractRuntime {
     /// Parses and optimises both graphs of `files` for `threads` worker threads (0 = all cores).
     pub fn new(files: &ModelFiles, threads: usize) -> Result<Self, ModelError> {
         let card = files.card.clone();
-        let dims = card.dims();
-        let unet_input_shape = [1, 3, dims[0], dims[1], dims[2]];
-        let unet_names = expected_unet_names(&card);
-        let (unet, unet_outputs) = no_panic(
-            || {
-                load_tract_graph(
-                    &files.unet_onnx,
-                    "unet",
-                    UNET_INPUT,
-                    |_| f32::fact(unet_input_shape).into(),
-                    &unet_names,
-                )
-            },
-            |m| ModelError::Graph {
-                graph: "unet",
-                runtime: "tract",
-                source: Box::new(StringError(format!("tract panicked: {m}"))),
-            },
-        )?;
+        let executor = tract_executor(threads)?;
+        let unet = FixedGraph::tract(&files.unet_onnx, unet_spec(&card), executor.clone())?;
         let feature_dim = card.feature_dim();
         let mlp_names: Vec<String> = MLP_OUTPUTS.iter().map(|s| s.to_string()).collect();
         let (mlp, mlp_index) = no_panic(
@@ -400,30 +600,11 @@ impl TractRuntime {
                     &mlp_names,
                 )
             },
-            |m| ModelError::Graph {
-                graph: "mlp",
-                runtime: "tract",
-                source: Box::new(StringError(format!("tract panicked: {m}"))),
-            },
+            tract_load_panic("mlp"),
         )?;
-        let threads = resolve_threads(threads);
-        let executor = if threads <= 1 {
-            tract_linalg::multithread::Executor::SingleThread
-        } else {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .thread_name(|i| format!("psgrasp-tract-{i}"))
-                .build()
-                .map_err(|e| ModelError::RuntimeUnavailable {
-                    runtime: "tract",
-                    reason: format!("cannot start {threads} threads: {e}"),
-                })?;
-            tract_linalg::multithread::Executor::MultiThread(Arc::new(pool))
-        };
         Ok(Self {
             unet,
             mlp,
-            unet_outputs,
             mlp_outputs: [
                 mlp_index[0],
                 mlp_index[1],
@@ -431,37 +612,21 @@ impl TractRuntime {
                 mlp_index[3],
                 mlp_index[4],
             ],
-            unet_input_shape,
             feature_dim,
             card,
             executor,
         })
     }
+}
 
-    fn run_plan(
-        &self,
-        plan: &Arc<TypedRunnableModel>,
-        graph: &'static str,
-        input: Tensor,
-    ) -> Result<TVec<TValue>, ModelError> {
-        let executor = self.executor.clone();
-        no_panic(
-            || {
-                tract_linalg::multithread::multithread_tract_scope(executor, || {
-                    plan.run(tvec!(input.into_tvalue()))
-                })
-                .map_err(|e| ModelError::Run {
-                    graph,
-                    runtime: "tract",
-                    source: e.into(),
-                })
-            },
-            |m| ModelError::Run {
-                graph,
-                runtime: "tract",
-                source: Box::new(StringError(format!("tract panicked: {m}"))),
-            },
-        )
+/// The U-Net's interface: input `[1, 3, X, Y, Z]`, outputs in [`expected_unet_names`] order.
+fn unet_spec(card: &ModelCard) -> GraphSpec {
+    let d = card.dims();
+    GraphSpec {
+        graph: "unet",
+        input_name: UNET_INPUT,
+        input_shape: vec![1, 3, d[0], d[1], d[2]],
+        output_names: expected_unet_names(card),
     }
 }
 
@@ -471,36 +636,7 @@ impl GraphRuntime for TractRuntime {
     }
 
     fn run_unet(&mut self, normals: &[f32]) -> Result<UnetOutputs, ModelError> {
-        let input = Tensor::from_shape(&self.unet_input_shape, normals).map_err(|e| {
-            ModelError::GraphInterface {
-                graph: "unet",
-                reason: format!("input of {} values: {e}", normals.len()),
-            }
-        })?;
-        let mut outputs = self.run_plan(&self.unet, "unet", input)?;
-        let names = expected_unet_names(&self.card);
-        let mut taken: Vec<Option<TValue>> = outputs.drain(..).map(Some).collect();
-        let mut tensors = Vec::with_capacity(names.len());
-        for (name, &ix) in names.iter().zip(&self.unet_outputs) {
-            let v = taken.get_mut(ix).and_then(Option::take).ok_or_else(|| {
-                ModelError::GraphInterface {
-                    graph: "unet",
-                    reason: format!("output `{name}` missing"),
-                }
-            })?;
-            tensors.push(OutputTensor::from_tract(v, "unet", name)?);
-        }
-        let mut it = tensors.into_iter();
-        let label_logits = it.next().ok_or_else(|| ModelError::GraphInterface {
-            graph: "unet",
-            reason: "no outputs".into(),
-        })?;
-        let out = UnetOutputs {
-            label_logits,
-            features: it.collect(),
-        };
-        check_unet_outputs(&self.card, &out)?;
-        Ok(out)
+        unet_outputs(&self.card, self.unet.run(normals)?)
     }
 
     fn run_mlp(
@@ -515,7 +651,7 @@ impl GraphRuntime for TractRuntime {
                 reason: format!("input of {} values for {n} rows: {e}", features.len()),
             }
         })?;
-        let outputs = self.run_plan(&self.mlp, "mlp", input)?;
+        let outputs = run_tract(&self.mlp, &self.executor, "mlp", input)?;
         let mut data: [&[f32]; 5] = [&[]; 5];
         let mut shapes: [&[usize]; 5] = [&[]; 5];
         let mut tensors = Vec::with_capacity(5);
@@ -563,7 +699,9 @@ mod ort_runtime {
 
     /// Loads `libonnxruntime` from `library` (or `$ORT_DYLIB_PATH`) once per process and returns
     /// the process's ONNX Runtime environment.
-    fn environment(library: Option<&Path>) -> Result<ort::environment::Environment, ModelError> {
+    pub(super) fn environment(
+        library: Option<&Path>,
+    ) -> Result<ort::environment::Environment, ModelError> {
         let path = match library {
             Some(p) => p.to_owned(),
             None => std::env::var_os(ORT_DYLIB_ENV)
@@ -613,9 +751,52 @@ mod ort_runtime {
         }
     }
 
+    impl FixedGraph {
+        /// Creates an ONNX Runtime session for `bytes` and checks its input and output names.
+        pub(super) fn ort(
+            env: &ort::environment::Environment,
+            bytes: &[u8],
+            spec: GraphSpec,
+            threads: usize,
+        ) -> Result<Self, ModelError> {
+            let session = session(env, bytes, spec.graph, resolve_threads(threads))?;
+            check_names(&session, spec.graph, spec.input_name, &spec.output_names)?;
+            Ok(Self {
+                spec,
+                engine: Engine::Ort(session),
+            })
+        }
+    }
+
+    /// Runs a single-input session on `input` (`spec.input_shape`, row-major) and takes the
+    /// outputs `spec.output_names`, in that order.
+    pub(super) fn run_fixed(
+        session: &mut Session,
+        spec: &GraphSpec,
+        input: &[f32],
+    ) -> Result<Vec<OutputTensor>, ModelError> {
+        let graph = spec.graph;
+        let dims: Vec<i64> = spec.input_shape.iter().map(|&v| v as i64).collect();
+        let input = TensorRef::from_array_view((dims, input)).map_err(ort_run_err(graph))?;
+        let mut outputs = session
+            .run(ort::inputs![input])
+            .map_err(ort_run_err(graph))?;
+        let mut tensors = Vec::with_capacity(spec.output_names.len());
+        for name in &spec.output_names {
+            let v = outputs
+                .remove(name)
+                .ok_or_else(|| ModelError::GraphInterface {
+                    graph,
+                    reason: format!("output `{name}` missing"),
+                })?;
+            tensors.push(OutputTensor::from_ort(v, graph, name)?);
+        }
+        Ok(tensors)
+    }
+
     /// The ONNX Runtime runtime: one session per graph with `threads` intra-op threads.
     pub struct OrtRuntime {
-        unet: Session,
+        unet: FixedGraph,
         mlp: Session,
         card: ModelCard,
         feature_dim: usize,
@@ -683,10 +864,8 @@ mod ort_runtime {
             threads: usize,
         ) -> Result<Self, ModelError> {
             let env = environment(library)?;
-            let threads = resolve_threads(threads);
-            let unet = session(&env, &files.unet_onnx, "unet", threads)?;
-            let mlp = session(&env, &files.mlp_onnx, "mlp", threads)?;
-            check_names(&unet, "unet", UNET_INPUT, &expected_unet_names(&files.card))?;
+            let unet = FixedGraph::ort(&env, &files.unet_onnx, unet_spec(&files.card), threads)?;
+            let mlp = session(&env, &files.mlp_onnx, "mlp", resolve_threads(threads))?;
             let mlp_names: Vec<String> = MLP_OUTPUTS.iter().map(|s| s.to_string()).collect();
             check_names(&mlp, "mlp", MLP_INPUT, &mlp_names)?;
             Ok(Self {
@@ -704,43 +883,7 @@ mod ort_runtime {
         }
 
         fn run_unet(&mut self, normals: &[f32]) -> Result<UnetOutputs, ModelError> {
-            let d = self.card.dims();
-            let shape = [1usize, 3, d[0], d[1], d[2]];
-            if normals.len() != shape.iter().product::<usize>() {
-                return Err(ModelError::GraphInterface {
-                    graph: "unet",
-                    reason: format!("input of {} values for shape {shape:?}", normals.len()),
-                });
-            }
-            let input = TensorRef::from_array_view((shape.map(|v| v as i64), normals))
-                .map_err(ort_run_err("unet"))?;
-            let mut outputs = self
-                .unet
-                .run(ort::inputs![UNET_INPUT => input])
-                .map_err(ort_run_err("unet"))?;
-            let names = expected_unet_names(&self.card);
-            let mut tensors = Vec::with_capacity(names.len());
-            for name in &names {
-                let v = outputs
-                    .remove(name)
-                    .ok_or_else(|| ModelError::GraphInterface {
-                        graph: "unet",
-                        reason: format!("output `{name}` missing"),
-                    })?;
-                tensors.push(OutputTensor::from_ort(v, "unet", name)?);
-            }
-            drop(outputs);
-            let mut it = tensors.into_iter();
-            let label_logits = it.next().ok_or_else(|| ModelError::GraphInterface {
-                graph: "unet",
-                reason: "no outputs".into(),
-            })?;
-            let out = UnetOutputs {
-                label_logits,
-                features: it.collect(),
-            };
-            check_unet_outputs(&self.card, &out)?;
-            Ok(out)
+            unet_outputs(&self.card, self.unet.run(normals)?)
         }
 
         fn run_mlp(
