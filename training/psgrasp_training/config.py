@@ -118,6 +118,12 @@ class LossConfig:
     width_unit_m: float = 0.001
     #: Lower bound of the mixture weights σ_i inside the approach NLL (avoids log 0).
     sigma_floor: float = 1e-4
+    #: VGN variant: negatives of the quality loss are the voxels within this many voxels of an
+    #: observed surface voxel (VGN samples its grasps near surfaces); 0 = every voxel.
+    vgn_negative_band_voxels: int = 0
+    #: VGN variant: weight of a positive voxel against one negative in a plain mean of the quality
+    #: BCE; 0 = positives and negatives averaged separately (balanced).
+    vgn_positive_weight: float = 0.0
 
 
 @dataclass
@@ -244,6 +250,8 @@ class Config:
         lo = self.loss
         if len(lo.class_weights) != 3 or any(w < 0 for w in lo.class_weights):
             raise ConfigError("loss.class_weights must be three non-negative weights [empty, contact, gripper]")
+        if lo.vgn_negative_band_voxels < 0 or lo.vgn_positive_weight < 0:
+            raise ConfigError("loss.vgn_negative_band_voxels and loss.vgn_positive_weight must be ≥ 0")
         if lo.focal_gamma < 0 or not (lo.width_unit_m > 0) or not (0 < lo.sigma_floor < 1):
             raise ConfigError("loss.focal_gamma ≥ 0, loss.width_unit_m > 0, 0 < loss.sigma_floor < 1 required")
         t = self.train

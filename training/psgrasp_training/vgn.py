@@ -145,18 +145,34 @@ def vgn_targets(scene: Scene, min_quality: float = MIN_LABEL_QUALITY) -> dict[st
     return out
 
 
-def vgn_loss(out: dict[str, torch.Tensor], targets: dict[str, torch.Tensor], voxel_size_m: float) -> dict:
-    """Quality BCE (mean over positives + mean over negatives), and at positives the orientation
-    loss (1 − |b̂·b|) + (1 − â·a) and 0.01 × width MSE in voxel units (VGN's weights)."""
+def negative_region(normals: torch.Tensor, band_voxels: int) -> torch.Tensor:
+    """Voxels within ``band_voxels`` (Chebyshev distance) of an observed surface voxel (non-zero
+    normal); every voxel for ``band_voxels`` = 0. ``normals`` [3, X, Y, Z] → [X, Y, Z] bool."""
+    if band_voxels <= 0:
+        return torch.ones(normals.shape[1:], dtype=torch.bool, device=normals.device)
+    surface = (normals.abs().sum(0) > 0).float()[None, None]
+    k = 2 * band_voxels + 1
+    return F.max_pool3d(surface, k, stride=1, padding=band_voxels)[0, 0] > 0
+
+
+def vgn_loss(out: dict[str, torch.Tensor], targets: dict[str, torch.Tensor], voxel_size_m: float,
+             region: torch.Tensor | None = None, positive_weight: float = 0.0) -> dict:
+    """Quality BCE over the positives and the negatives inside ``region`` (default every voxel):
+    balanced (mean over positives + mean over negatives) for ``positive_weight`` = 0, else one
+    weighted mean with that weight on positives; at positives the orientation loss
+    (1 − |b̂·b|) + (1 − â·a) and 0.01 × width MSE in voxel units (VGN's weights)."""
     pos = targets["positive"].unsqueeze(0)
     logit = out["quality_logit"][:, 0]
     bce = F.binary_cross_entropy_with_logits(logit, pos.float(), reduction="none")
+    neg = ~pos if region is None else (~pos) & region.unsqueeze(0)
     n_pos = int(pos.sum())
-    neg_term = bce[~pos].mean() if bool((~pos).any()) else logit.sum() * 0
+    zero = logit.sum() * 0
+    if positive_weight > 0:
+        q_loss = (positive_weight * bce[pos].sum() + bce[neg].sum()) / max(positive_weight * n_pos + int(neg.sum()), 1)
+    else:
+        q_loss = (bce[neg].mean() if bool(neg.any()) else zero) + (bce[pos].mean() if n_pos else zero)
     if n_pos == 0:
-        zero = logit.sum() * 0
-        return {"loss": neg_term, "quality": neg_term, "rotation": zero, "width": zero, "positives": 0.0}
-    q_loss = bce[pos].mean() + neg_term
+        return {"loss": q_loss, "quality": q_loss, "rotation": zero, "width": zero, "positives": 0.0}
     b_hat, a_hat = orientation(out["baseline"], out["approach"])
     m = pos[0]
     bp, ap = b_hat[0][:, m], a_hat[0][:, m]
@@ -259,7 +275,10 @@ def train_vgn(cfg: Config, data: Path, run_dir: Path, resume: bool = False, expo
                 group["lr"] = lr
             scene, _ = scene_for_step(ds, cfg, step)
             targets = _to(vgn_targets(scene), device)
-            out = vgn_loss(net(scene.normals.unsqueeze(0).to(device)), targets, scene.voxel_size_m)
+            normals = scene.normals.to(device)
+            region = negative_region(normals, cfg.loss.vgn_negative_band_voxels)
+            out = vgn_loss(net(normals.unsqueeze(0)), targets, scene.voxel_size_m, region,
+                           cfg.loss.vgn_positive_weight)
             if not torch.isfinite(out["loss"]):
                 raise RunError(f"non-finite loss at step {step} (scene {scene.index})")
             opt.zero_grad(set_to_none=True)

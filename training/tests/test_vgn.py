@@ -154,3 +154,30 @@ def test_same_seed_same_weights_and_the_quality_head_learns(box_dataset, tmp_pat
     rows = [r.split(",") for r in (tmp_path / "a" / "log.csv").read_text().strip().splitlines()[1:]]
     quality = [float(r[2]) for r in rows]
     assert np.mean(quality[-5:]) < np.mean(quality[:5])
+
+
+def test_negative_region_is_the_surface_band():
+    from psgrasp_training.vgn import negative_region
+
+    normals = torch.zeros(3, *DIMS)
+    normals[2, 5, 6, 7] = 1.0
+    band = negative_region(normals, 1)
+    assert int(band.sum()) == 27 and band[4:7, 5:8, 6:9].all()
+    assert int(negative_region(normals, 2).sum()) == 125
+    assert negative_region(normals, 0).all()
+
+
+def test_weighted_quality_loss_is_one_weighted_mean_over_the_region():
+    grasps = [([0.050, 0.050, 0.050], [1.0, 0.0, 0.0], 0.036, 0.9, [8])]
+    tg = vgn_targets(scene_with(grasps))
+    out = {"quality_logit": torch.zeros(1, 1, *DIMS), "baseline": tg["baseline"].unsqueeze(0),
+           "approach": tg["approach"].unsqueeze(0), "width_vox": (tg["width"] / V).reshape(1, 1, *DIMS)}
+    region = torch.zeros(DIMS, dtype=torch.bool)
+    region[0:2, 0:2, 0:2] = True  # 8 negatives
+    out["quality_logit"][0, 0][tg["positive"]] = 2.0
+    bce_pos = float(torch.nn.functional.softplus(torch.tensor(-2.0)))
+    bce_neg = float(torch.nn.functional.softplus(torch.tensor(0.0)))
+    weighted = vgn_loss(out, tg, V, region, positive_weight=4.0)["quality"].item()
+    assert weighted == pytest.approx((4 * bce_pos + 8 * bce_neg) / (4 + 8), rel=1e-5)
+    balanced = vgn_loss(out, tg, V, region)["quality"].item()
+    assert balanced == pytest.approx(bce_pos + bce_neg, rel=1e-5)
