@@ -124,6 +124,9 @@ class LossConfig:
     #: VGN variant: weight of a positive voxel against one negative in a plain mean of the quality
     #: BCE; 0 = positives and negatives averaged separately (balanced).
     vgn_positive_weight: float = 0.0
+    #: VGN variant: voxels within this Chebyshev distance of a labelled grasp centre are positives
+    #: too (carrying the best grasp centred in their neighbourhood); 0 = centre voxels only.
+    vgn_positive_dilation_voxels: int = 0
 
 
 @dataclass
@@ -250,8 +253,8 @@ class Config:
         lo = self.loss
         if len(lo.class_weights) != 3 or any(w < 0 for w in lo.class_weights):
             raise ConfigError("loss.class_weights must be three non-negative weights [empty, contact, gripper]")
-        if lo.vgn_negative_band_voxels < 0 or lo.vgn_positive_weight < 0:
-            raise ConfigError("loss.vgn_negative_band_voxels and loss.vgn_positive_weight must be ≥ 0")
+        if lo.vgn_negative_band_voxels < 0 or lo.vgn_positive_weight < 0 or lo.vgn_positive_dilation_voxels < 0:
+            raise ConfigError("loss.vgn_negative_band_voxels, vgn_positive_weight, vgn_positive_dilation_voxels must be ≥ 0")
         if lo.focal_gamma < 0 or not (lo.width_unit_m > 0) or not (0 < lo.sigma_floor < 1):
             raise ConfigError("loss.focal_gamma ≥ 0, loss.width_unit_m > 0, 0 < loss.sigma_floor < 1 required")
         t = self.train

@@ -103,14 +103,15 @@ class VgnExport(nn.Module):
         return torch.sigmoid(out["quality_logit"]), b, a, out["width_vox"] * self.voxel_size_m
 
 
-def vgn_targets(scene: Scene, min_quality: float = MIN_LABEL_QUALITY) -> dict[str, torch.Tensor]:
+def vgn_targets(scene: Scene, min_quality: float = MIN_LABEL_QUALITY, dilate: int = 0) -> dict[str, torch.Tensor]:
     """VGN targets of a scene: ``positive`` [X,Y,Z] bool, ``baseline``/``approach`` [3,X,Y,Z] and
     ``width`` [X,Y,Z] (m; zero at negatives).
 
     Candidates are all (configuration, approach) pairs with a collision-free approach and quality
     > ``min_quality``; the pair's voxel is the one holding its centre c + b·w/2. Per voxel the best
     quality wins, ties go to the approach closest to vertical, then to the lower configuration index
-    (deterministic)."""
+    (deterministic). ``dilate`` = d > 0 also makes every voxel within Chebyshev distance d of a
+    centre voxel a positive carrying the best grasp centred in that neighbourhood."""
     dims = scene.dims
     nvox = dims[0] * dims[1] * dims[2]
     out = {"positive": torch.zeros(dims, dtype=torch.bool), "baseline": torch.zeros(3, *dims),
@@ -130,8 +131,16 @@ def vgn_targets(scene: Scene, min_quality: float = MIN_LABEL_QUALITY) -> dict[st
     rank = torch.empty(len(gi), dtype=torch.long)
     rank[torch.from_numpy(order)] = torch.arange(len(gi))
     v = ijk[gi]
+    if dilate > 0:
+        r = torch.arange(-dilate, dilate + 1)
+        offsets = torch.cartesian_prod(r, r, r)
+        v = (v.unsqueeze(1) + offsets.unsqueeze(0)).reshape(-1, 3)
+        keep = ((v >= 0) & (v < torch.tensor(dims))).all(1)
+        n_off = len(offsets)
+        gi, ai, rank = (x.repeat_interleave(n_off)[keep] for x in (gi, ai, rank))
+        v = v[keep]
     lin = (v[:, 0] * dims[1] + v[:, 1]) * dims[2] + v[:, 2]
-    best = torch.full((nvox,), len(gi), dtype=torch.long).scatter_reduce(0, lin, rank, "amin")
+    best = torch.full((nvox,), torch.iinfo(torch.long).max, dtype=torch.long).scatter_reduce(0, lin, rank, "amin")
     win = rank == best[lin]
     gw, aw, lw = gi[win], ai[win], lin[win]
     b = scene.baseline[gw]
@@ -274,7 +283,7 @@ def train_vgn(cfg: Config, data: Path, run_dir: Path, resume: bool = False, expo
             for group in opt.param_groups:
                 group["lr"] = lr
             scene, _ = scene_for_step(ds, cfg, step)
-            targets = _to(vgn_targets(scene), device)
+            targets = _to(vgn_targets(scene, dilate=cfg.loss.vgn_positive_dilation_voxels), device)
             normals = scene.normals.to(device)
             region = negative_region(normals, cfg.loss.vgn_negative_band_voxels)
             out = vgn_loss(net(normals.unsqueeze(0)), targets, scene.voxel_size_m, region,

@@ -72,6 +72,22 @@ def test_targets_keep_the_best_labelled_grasp_per_voxel():
     assert tg["width"].count_nonzero() == 2
 
 
+def test_dilated_targets_spread_the_best_grasp_to_the_neighbourhood():
+    x = [1.0, 0.0, 0.0]
+    grasps = [([0.050, 0.050, 0.050], x, 0.030, 0.90, [3]),    # centre voxel (7, 5, 5)
+              ([0.068, 0.050, 0.050], x, 0.030, 0.95, [0])]    # centre voxel (9, 5, 5): better
+    va, vb = voxel_of(*grasps[0][:3]), voxel_of(*grasps[1][:3])
+    assert (va, vb) == ((7, 5, 5), (9, 5, 5))
+    tg = vgn_targets(scene_with(grasps), dilate=1)
+    assert int(tg["positive"].sum()) == 5 * 3 * 3  # x 6..10, y 4..6, z 4..6
+    b = torch.tensor(x).unsqueeze(0)
+    a0, a3 = approach_vectors(b)[0, 0], approach_vectors(b)[0, 3]
+    assert torch.allclose(tg["approach"][:, 8, 5, 5], a0)  # shared neighbour: the better grasp
+    assert torch.allclose(tg["approach"][:, 6, 4, 6], a3)  # only near the first grasp
+    assert torch.allclose(tg["approach"][:, 10, 6, 4], a0)
+    assert vgn_targets(scene_with(grasps))["positive"].nonzero().tolist() == sorted([list(va), list(vb)])
+
+
 def test_targets_of_a_scene_without_grasps_are_all_negative():
     tg = vgn_targets(scene_with([([0.05, 0.05, 0.05], [1.0, 0.0, 0.0], 0.03, 0.3, [4])]))
     assert not tg["positive"].any() and tg["width"].abs().sum() == 0
