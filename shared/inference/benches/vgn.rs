@@ -1,0 +1,117 @@
+//! VGN-style backend speed per stage on a 64³ fused grid (the procedural bin scene of the learned
+//! bench), for tract and — with `--features ort` — ONNX Runtime.
+//!
+//! Run: `cargo bench --workspace --features ort --bench vgn [-- MODEL_DIR]` (the ort rows need
+//! `ORT_DYLIB_PATH`). The model directory is the argument, else `$PSGRASP_VGN_MODEL_DIR`, else
+//! `models/vgn`. `PSGRASP_BENCH_ITERS` sets the timed runs per row (default 5),
+//! `PSGRASP_BENCH_THREADS` a comma-separated list of thread counts (default `1,2`).
+use nalgebra::Point3;
+use psgrasp_fusion::{fuse_normal_grid, FusionConfig, NormalGrid};
+use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, GripperModel, Workspace};
+use psgrasp_inference::vgn::{VgnBackend, VgnCard, VgnConfig, VgnTimings};
+use psgrasp_inference::{InferenceBackend, RuntimeKind};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+fn model_dir() -> PathBuf {
+    let arg = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    arg.map(PathBuf::from)
+        .or_else(|| std::env::var_os("PSGRASP_VGN_MODEL_DIR").map(PathBuf::from))
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/vgn"))
+}
+
+fn fused_grid(workspace: Workspace) -> NormalGrid {
+    let bin = BinModel::default();
+    let scene = psgrasp_sim::procedural_scene(3, 12, &bin).expect("procedural scene");
+    let camera = CameraModel::top_down(
+        CameraIntrinsics::default_640x480(),
+        Point3::new(0.288, 0.288, 0.018 + 0.28 + 0.6),
+    );
+    let depth = scene.render_depth(&camera);
+    fuse_normal_grid(&depth, &camera, &workspace, &FusionConfig::default()).expect("fusion")
+}
+
+fn env_usize(name: &str, default: usize) -> usize {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+fn main() {
+    let dir = model_dir();
+    let card = match VgnCard::read(&dir) {
+        Ok(c) => c,
+        Err(e) => {
+            println!(
+                "vgn bench: no model at {} ({e}); pass MODEL_DIR or set PSGRASP_VGN_MODEL_DIR",
+                dir.display()
+            );
+            return;
+        }
+    };
+    let workspace = card.workspace();
+    let iters = env_usize("PSGRASP_BENCH_ITERS", 5).max(1);
+    let threads: Vec<usize> = std::env::var("PSGRASP_BENCH_THREADS")
+        .unwrap_or_else(|_| "1,2".into())
+        .split(',')
+        .filter_map(|t| t.trim().parse().ok())
+        .collect();
+    let grid = fused_grid(workspace);
+    println!(
+        "VGN-style backend: model {} at {}, grid {:?} × {} mm; {iters} runs per row after a \
+         warm-up; milliseconds, mean (min)\n",
+        card.name,
+        dir.display(),
+        workspace.dims,
+        workspace.voxel_size_m * 1e3,
+    );
+    println!("| runtime | threads | grasps | network | decoding | total |");
+    println!("|---|---|---|---|---|---|");
+    let mut runtimes = vec![RuntimeKind::Tract];
+    if cfg!(feature = "ort") {
+        runtimes.push(RuntimeKind::Ort);
+    }
+    for runtime in runtimes {
+        for &t in &threads {
+            let cfg = VgnConfig {
+                model_dir: dir.clone(),
+                runtime,
+                threads: t,
+                ..VgnConfig::default()
+            };
+            let mut backend = match VgnBackend::new(cfg, &workspace, GripperModel::default()) {
+                Ok(b) => b,
+                Err(e) => {
+                    println!("| {} | {t} | error: {e} |", runtime.name());
+                    continue;
+                }
+            };
+            backend.infer(&grid.view(), 0).expect("inference");
+            let runs: Vec<VgnTimings> = (0..iters)
+                .map(|_| {
+                    backend.infer(&grid.view(), 0).expect("inference");
+                    backend.last_timings()
+                })
+                .collect();
+            let stat = |f: fn(&VgnTimings) -> Duration| {
+                let v: Vec<f64> = runs.iter().map(|r| ms(f(r))).collect();
+                let mean = v.iter().sum::<f64>() / v.len() as f64;
+                let min = v.iter().cloned().fold(f64::INFINITY, f64::min);
+                format!("{mean:.1} ({min:.1})")
+            };
+            println!(
+                "| {} | {t} | {} | {} | {} | {} |",
+                runtime.name(),
+                runs[0].grasps,
+                stat(|r| r.network),
+                stat(|r| r.decoding),
+                stat(|r| r.total),
+            );
+        }
+    }
+}
