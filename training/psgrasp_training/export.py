@@ -134,7 +134,7 @@ def _random_normal_grid(dims: list[int], seed: int) -> torch.Tensor:
 
 def export_model(net: GraspNet, cfg: Config, info: DatasetInfo, out_dir: Path, step: int = 0,
                  validation: dict | None = None, reference_scene: Path | None = None,
-                 contact_probability: float | None = None, atol: float = 1e-5, rtol: float = 1e-6,
+                 contact_probability: float | None = None, atol: float = 1e-5, rtol: float = 1e-5,
                  log=print) -> dict[str, Any]:
     """Export, verify and write a model directory; returns the card."""
     out_dir = Path(out_dir)
