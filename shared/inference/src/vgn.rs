@@ -54,7 +54,8 @@ pub struct VgnConfig {
     /// as VGN); 0 disables smoothing.
     pub smoothing_sigma_voxels: f32,
     /// Edge of the non-maximum-suppression window in voxels (default 4, as VGN's
-    /// `maximum_filter(size=4)`); 1 disables suppression.
+    /// `maximum_filter(size=4)`); 1 disables suppression. Windows follow SciPy: size n covers
+    /// offsets −⌊n/2⌋ … n−1−⌊n/2⌋, so an even size is not centred (2 = offsets −1 and 0).
     pub nms_window_voxels: usize,
     /// Narrowest accepted predicted width in metres (default 0); widths above the gripper's
     /// maximum opening are always rejected.
