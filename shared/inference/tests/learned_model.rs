@@ -18,12 +18,10 @@ use psgrasp_inference::{
     backend_for_workspace, backend_from_config, BackendConfig, InferenceBackend, InferenceError,
     LearnedBackend, LearnedConfig,
 };
-use safetensors::SafeTensors;
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-/// Largest allowed difference to the PyTorch reference.
-const TOLERANCE: f32 = 1e-4;
+mod common;
+use common::{assert_close, Reference};
 
 fn model_dir() -> PathBuf {
     std::env::var_os("PSGRASP_TEST_MODEL_DIR")
@@ -44,40 +42,13 @@ fn gripper() -> GripperModel {
     GripperModel::default()
 }
 
-/// The tensors of `reference.safetensors` as (shape, values).
-struct Reference {
-    tensors: HashMap<String, (Vec<usize>, Vec<f32>)>,
+/// Learned-model views of the reference tensors.
+trait LearnedReference {
+    fn points(&self) -> Vec<[f32; 3]>;
+    fn head(&self) -> HeadOutputs;
 }
 
-impl Reference {
-    fn load() -> Self {
-        let bytes = std::fs::read(model_dir().join("reference.safetensors")).expect("reference");
-        let st = SafeTensors::deserialize(&bytes).expect("valid safetensors");
-        let mut tensors = HashMap::new();
-        for (name, view) in st.tensors() {
-            assert_eq!(view.dtype(), safetensors::Dtype::F32, "{name}");
-            let values = view
-                .data()
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                .collect();
-            tensors.insert(name.to_string(), (view.shape().to_vec(), values));
-        }
-        Self { tensors }
-    }
-
-    fn get(&self, name: &str) -> &[f32] {
-        &self
-            .tensors
-            .get(name)
-            .unwrap_or_else(|| panic!("reference has no `{name}`"))
-            .1
-    }
-
-    fn shape(&self, name: &str) -> &[usize] {
-        &self.tensors[name].0
-    }
-
+impl LearnedReference for Reference {
     fn points(&self) -> Vec<[f32; 3]> {
         self.get("points")
             .chunks_exact(3)
@@ -96,31 +67,9 @@ impl Reference {
     }
 }
 
-fn assert_close(name: &str, ours: &[f32], reference: &[f32]) {
-    assert_eq!(ours.len(), reference.len(), "{name}: length");
-    let (mut worst, mut at) = (0.0f32, 0);
-    for (i, (a, b)) in ours.iter().zip(reference).enumerate() {
-        let d = (a - b).abs();
-        if d > worst || d.is_nan() {
-            worst = d;
-            at = i;
-        }
-    }
-    eprintln!(
-        "{name}: {} values, max abs difference {worst:.3e}",
-        ours.len()
-    );
-    assert!(
-        worst <= TOLERANCE,
-        "{name}: max abs difference {worst} at {at} ({} vs {})",
-        ours[at],
-        reference[at]
-    );
-}
-
 /// Checks one runtime against every reference tensor.
 fn agreement(kind: RuntimeKind, ort_library: Option<&Path>) {
-    let reference = Reference::load();
+    let reference = Reference::load(&model_dir());
     let files = load_model_dir(&model_dir(), &workspace(), &gripper()).expect("model dir");
     let mut model = LearnedModel::new(&files, kind, ort_library, 1).expect("runtime");
     let card = model.card().clone();
@@ -201,7 +150,7 @@ fn agreement(kind: RuntimeKind, ort_library: Option<&Path>) {
         &scores,
         reference.get("collision_scores"),
     );
-    if reference.tensors.contains_key("approach_vectors") {
+    if reference.has("approach_vectors") {
         let approaches: Vec<f32> = configs
             .iter()
             .flat_map(|c| c.approaches())
@@ -268,7 +217,7 @@ fn learned_config(kind: RuntimeKind) -> LearnedConfig {
 }
 
 fn backend_end_to_end(kind: RuntimeKind, ort_library: Option<PathBuf>) {
-    let reference = Reference::load();
+    let reference = Reference::load(&model_dir());
     let grid = reference_grid(&reference);
     let cfg = LearnedConfig {
         ort_library,

@@ -21,12 +21,10 @@ use psgrasp_inference::{
     backend_for_workspace, backend_from_config, BackendConfig, InferenceBackend, InferenceError,
     VgnBackend, VgnConfig,
 };
-use safetensors::SafeTensors;
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-/// Largest allowed difference to the PyTorch reference.
-const TOLERANCE: f32 = 1e-4;
+mod common;
+use common::{assert_close, Reference};
 
 // ---------------------------------------------------------------------------------------------
 // Decoding on hand-made output grids
@@ -362,65 +360,8 @@ fn gripper() -> GripperModel {
     GripperModel::default()
 }
 
-/// The tensors of `reference.safetensors` as (shape, values).
-struct Reference {
-    tensors: HashMap<String, (Vec<usize>, Vec<f32>)>,
-}
-
-impl Reference {
-    fn load() -> Self {
-        let bytes = std::fs::read(model_dir().join("reference.safetensors")).expect("reference");
-        let st = SafeTensors::deserialize(&bytes).expect("valid safetensors");
-        let mut tensors = HashMap::new();
-        for (name, view) in st.tensors() {
-            assert_eq!(view.dtype(), safetensors::Dtype::F32, "{name}");
-            let values = view
-                .data()
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                .collect();
-            tensors.insert(name.to_string(), (view.shape().to_vec(), values));
-        }
-        Self { tensors }
-    }
-
-    fn get(&self, name: &str) -> &[f32] {
-        &self
-            .tensors
-            .get(name)
-            .unwrap_or_else(|| panic!("reference has no `{name}`"))
-            .1
-    }
-
-    fn shape(&self, name: &str) -> &[usize] {
-        &self.tensors[name].0
-    }
-}
-
-fn assert_close(name: &str, ours: &[f32], reference: &[f32]) {
-    assert_eq!(ours.len(), reference.len(), "{name}: length");
-    let (mut worst, mut at) = (0.0f32, 0);
-    for (i, (a, b)) in ours.iter().zip(reference).enumerate() {
-        let d = (a - b).abs();
-        if d > worst || d.is_nan() {
-            worst = d;
-            at = i;
-        }
-    }
-    eprintln!(
-        "{name}: {} values, max abs difference {worst:.3e}",
-        ours.len()
-    );
-    assert!(
-        worst <= TOLERANCE,
-        "{name}: max abs difference {worst} at {at} ({} vs {})",
-        ours[at],
-        reference[at]
-    );
-}
-
 fn agreement(kind: RuntimeKind, ort_library: Option<&Path>) {
-    let reference = Reference::load();
+    let reference = Reference::load(&model_dir());
     let files = load_vgn_dir(&model_dir(), &workspace(), &gripper()).expect("model dir");
     let mut model = VgnModel::new(&files, kind, ort_library, 1).expect("runtime");
     assert_eq!(model.runtime_name(), kind.name());
