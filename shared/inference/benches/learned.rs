@@ -9,9 +9,8 @@
 //!
 //! Two contact settings per runtime: the card's threshold, and a forced 4096 contact voxels
 //! (threshold 0, the cap decides), the worst case of the default config.
-use nalgebra::Point3;
-use psgrasp_fusion::{fuse_normal_grid, FusionConfig, NormalGrid};
-use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, GripperModel, Workspace};
+use psgrasp_fusion::NormalGrid;
+use psgrasp_geometry::{GripperModel, Workspace};
 use psgrasp_inference::learned::{
     decode, load_model_dir, sampling, ClassProbabilities, Decoder, FeaturePyramid, HeadOutputs,
 };
@@ -23,33 +22,14 @@ use std::hint::black_box;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+mod common;
+use common::{bench_threads, env_usize, fused_grid, ms};
+
 fn model_dir() -> PathBuf {
     let arg = std::env::args().skip(1).find(|a| !a.starts_with('-'));
     arg.map(PathBuf::from)
         .or_else(|| std::env::var_os("PSGRASP_MODEL_DIR").map(PathBuf::from))
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default"))
-}
-
-fn fused_grid(workspace: Workspace) -> NormalGrid {
-    let bin = BinModel::default();
-    let scene = psgrasp_sim::procedural_scene(3, 12, &bin).expect("procedural scene");
-    let camera = CameraModel::top_down(
-        CameraIntrinsics::default_640x480(),
-        Point3::new(0.288, 0.288, 0.018 + 0.28 + 0.6),
-    );
-    let depth = scene.render_depth(&camera);
-    fuse_normal_grid(&depth, &camera, &workspace, &FusionConfig::default()).expect("fusion")
-}
-
-fn env_usize(name: &str, default: usize) -> usize {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
-fn ms(d: Duration) -> f64 {
-    d.as_secs_f64() * 1e3
 }
 
 /// Mean and minimum of each stage over `iters` runs after one warm-up.
@@ -82,11 +62,7 @@ fn main() {
     };
     let workspace = card.workspace();
     let iters = env_usize("PSGRASP_BENCH_ITERS", 5).max(1);
-    let threads: Vec<usize> = std::env::var("PSGRASP_BENCH_THREADS")
-        .unwrap_or_else(|_| "1,2".into())
-        .split(',')
-        .filter_map(|t| t.trim().parse().ok())
-        .collect();
+    let threads = bench_threads();
     let grid = fused_grid(workspace);
     if std::env::var_os("PSGRASP_BENCH_BREAKDOWN_ONLY").is_some() {
         breakdown(&dir, workspace, &grid, iters.max(10));

@@ -5,41 +5,20 @@
 //! `ORT_DYLIB_PATH`). The model directory is the argument, else `$PSGRASP_VGN_MODEL_DIR`, else
 //! `models/vgn`. `PSGRASP_BENCH_ITERS` sets the timed runs per row (default 5),
 //! `PSGRASP_BENCH_THREADS` a comma-separated list of thread counts (default `1,2`).
-use nalgebra::Point3;
-use psgrasp_fusion::{fuse_normal_grid, FusionConfig, NormalGrid};
-use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, GripperModel, Workspace};
+use psgrasp_geometry::GripperModel;
 use psgrasp_inference::vgn::{VgnBackend, VgnCard, VgnConfig, VgnTimings};
 use psgrasp_inference::{InferenceBackend, RuntimeKind};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
+
+mod common;
+use common::{bench_threads, env_usize, fused_grid, ms};
 
 fn model_dir() -> PathBuf {
     let arg = std::env::args().skip(1).find(|a| !a.starts_with('-'));
     arg.map(PathBuf::from)
         .or_else(|| std::env::var_os("PSGRASP_VGN_MODEL_DIR").map(PathBuf::from))
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/vgn"))
-}
-
-fn fused_grid(workspace: Workspace) -> NormalGrid {
-    let bin = BinModel::default();
-    let scene = psgrasp_sim::procedural_scene(3, 12, &bin).expect("procedural scene");
-    let camera = CameraModel::top_down(
-        CameraIntrinsics::default_640x480(),
-        Point3::new(0.288, 0.288, 0.018 + 0.28 + 0.6),
-    );
-    let depth = scene.render_depth(&camera);
-    fuse_normal_grid(&depth, &camera, &workspace, &FusionConfig::default()).expect("fusion")
-}
-
-fn env_usize(name: &str, default: usize) -> usize {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
-fn ms(d: Duration) -> f64 {
-    d.as_secs_f64() * 1e3
 }
 
 fn main() {
@@ -56,11 +35,7 @@ fn main() {
     };
     let workspace = card.workspace();
     let iters = env_usize("PSGRASP_BENCH_ITERS", 5).max(1);
-    let threads: Vec<usize> = std::env::var("PSGRASP_BENCH_THREADS")
-        .unwrap_or_else(|_| "1,2".into())
-        .split(',')
-        .filter_map(|t| t.trim().parse().ok())
-        .collect();
+    let threads = bench_threads();
     let grid = fused_grid(workspace);
     println!(
         "VGN-style backend: model {} at {}, grid {:?} × {} mm; {iters} runs per row after a \

@@ -1,0 +1,39 @@
+//! Helpers shared by the model benches (`learned.rs`, `vgn.rs`).
+use nalgebra::Point3;
+use psgrasp_fusion::{fuse_normal_grid, FusionConfig, NormalGrid};
+use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, Workspace};
+use std::time::Duration;
+
+/// The benches' input: a procedural 12-object bin scene rendered top-down and fused into `workspace`.
+pub fn fused_grid(workspace: Workspace) -> NormalGrid {
+    let bin = BinModel::default();
+    let scene = psgrasp_sim::procedural_scene(3, 12, &bin).expect("procedural scene");
+    let camera = CameraModel::top_down(
+        CameraIntrinsics::default_640x480(),
+        Point3::new(0.288, 0.288, 0.018 + 0.28 + 0.6),
+    );
+    let depth = scene.render_depth(&camera);
+    fuse_normal_grid(&depth, &camera, &workspace, &FusionConfig::default()).expect("fusion")
+}
+
+/// An unsigned integer from the environment, else `default`.
+pub fn env_usize(name: &str, default: usize) -> usize {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// The thread counts of `PSGRASP_BENCH_THREADS` (comma-separated, default `1,2`).
+pub fn bench_threads() -> Vec<usize> {
+    std::env::var("PSGRASP_BENCH_THREADS")
+        .unwrap_or_else(|_| "1,2".into())
+        .split(',')
+        .filter_map(|t| t.trim().parse().ok())
+        .collect()
+}
+
+/// Milliseconds.
+pub fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
