@@ -123,6 +123,17 @@ def build_card(cfg: Config, info: DatasetInfo, step: int, validation: dict | Non
     }
 
 
+def move_into_place(tmp_dir: Path, out_dir: Path) -> None:
+    """Make a finished model directory world-readable and rename it over ``out_dir``."""
+    for f in tmp_dir.iterdir():
+        f.chmod(0o644)
+    tmp_dir.chmod(0o755)
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(tmp_dir, out_dir)
+
+
 def _random_normal_grid(dims: list[int], seed: int) -> torch.Tensor:
     """A plausible input for graph checks when no scene is given: unit normals on a random 10 % of voxels."""
     g = torch.Generator().manual_seed(seed)
@@ -205,13 +216,7 @@ def export_model(net: GraspNet, cfg: Config, info: DatasetInfo, out_dir: Path, s
                                   "contact_voxels": int(voxels.numel()),
                                   "points_rule": "all voxels with P_contact >= threshold in ascending linear "
                                                  f"index, 8 sub-voxel centres each, first {REFERENCE_POINTS}"})
-        for f in tmp_dir.iterdir():
-            f.chmod(0o644)
-        tmp_dir.chmod(0o755)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        out_dir.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp_dir, out_dir)
+        move_into_place(tmp_dir, out_dir)
     finally:
         if tmp_dir.exists():
             shutil.rmtree(tmp_dir)

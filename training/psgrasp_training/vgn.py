@@ -353,7 +353,8 @@ def export_vgn(net: VgnNet, cfg: Config, info: DatasetInfo, out_dir: Path, step:
     checked with onnxruntime against PyTorch before the directory is renamed into place."""
     from safetensors.torch import save_file
 
-    from .export import ExportError, _check, _export_onnx, _ort_session, _random_normal_grid, sha256_bytes
+    from .export import (ExportError, _check, _export_onnx, _ort_session, _random_normal_grid, move_into_place,
+                         sha256_bytes)
 
     out_dir = Path(out_dir)
     net = net.cpu().eval()
@@ -387,13 +388,7 @@ def export_vgn(net: VgnNet, cfg: Config, info: DatasetInfo, out_dir: Path, step:
             save_file({k: v.detach().float().contiguous() for k, v in tensors.items()},
                       str(tmp_dir / "reference.safetensors"),
                       metadata={"psgrasp_reference": json.dumps({"scene": str(reference_scene or "synthetic")})})
-        for f in tmp_dir.iterdir():
-            f.chmod(0o644)
-        tmp_dir.chmod(0o755)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        out_dir.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp_dir, out_dir)
+        move_into_place(tmp_dir, out_dir)
     finally:
         if tmp_dir.exists():
             shutil.rmtree(tmp_dir)
