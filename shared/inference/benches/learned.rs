@@ -19,18 +19,11 @@ use psgrasp_inference::{
     StageTimings,
 };
 use std::hint::black_box;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{bench_threads, env_usize, fused_grid, ms};
-
-fn model_dir() -> PathBuf {
-    let arg = std::env::args().skip(1).find(|a| !a.starts_with('-'));
-    arg.map(PathBuf::from)
-        .or_else(|| std::env::var_os("PSGRASP_MODEL_DIR").map(PathBuf::from))
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default"))
-}
+use common::{bench_threads, env_usize, fused_grid, mean_min, model_dir, ms};
 
 /// Mean and minimum of each stage over `iters` runs after one warm-up.
 fn run_row(
@@ -49,7 +42,7 @@ fn run_row(
 }
 
 fn main() {
-    let dir = model_dir();
+    let dir = model_dir("PSGRASP_MODEL_DIR", "default");
     let card = match ModelCard::read(&dir) {
         Ok(c) => c,
         Err(e) => {
@@ -112,9 +105,7 @@ fn main() {
                 let (first, runs) = run_row(&mut backend, &grid, iters);
                 let stat = |f: fn(&StageTimings) -> Duration| {
                     let v: Vec<f64> = runs.iter().map(|r| ms(f(r))).collect();
-                    let mean = v.iter().sum::<f64>() / v.len() as f64;
-                    let min = v.iter().cloned().fold(f64::INFINITY, f64::min);
-                    format!("{mean:.1} ({min:.1})")
+                    mean_min(&v, 1)
                 };
                 println!(
                     "| {} | {t} | {label} | {} | {} | {} | {} | {} | {} | {} |",
@@ -143,9 +134,7 @@ fn time_ms(iters: usize, mut f: impl FnMut()) -> String {
             t.elapsed().as_secs_f64() * 1e3
         })
         .collect();
-    let mean = v.iter().sum::<f64>() / v.len() as f64;
-    let min = v.iter().cloned().fold(f64::INFINITY, f64::min);
-    format!("{mean:.2} ({min:.2})")
+    mean_min(&v, 2)
 }
 
 /// The sampling and decoding steps one by one (single thread), 4096 contact voxels.

@@ -8,21 +8,13 @@
 use psgrasp_geometry::GripperModel;
 use psgrasp_inference::vgn::{VgnBackend, VgnCard, VgnConfig, VgnTimings};
 use psgrasp_inference::{InferenceBackend, RuntimeKind};
-use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 mod common;
-use common::{bench_threads, env_usize, fused_grid, ms};
-
-fn model_dir() -> PathBuf {
-    let arg = std::env::args().skip(1).find(|a| !a.starts_with('-'));
-    arg.map(PathBuf::from)
-        .or_else(|| std::env::var_os("PSGRASP_VGN_MODEL_DIR").map(PathBuf::from))
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/vgn"))
-}
+use common::{bench_threads, env_usize, fused_grid, mean_min, model_dir, ms};
 
 fn main() {
-    let dir = model_dir();
+    let dir = model_dir("PSGRASP_VGN_MODEL_DIR", "vgn");
     let card = match VgnCard::read(&dir) {
         Ok(c) => c,
         Err(e) => {
@@ -75,9 +67,7 @@ fn main() {
                 .collect();
             let stat = |f: fn(&VgnTimings) -> Duration| {
                 let v: Vec<f64> = runs.iter().map(|r| ms(f(r))).collect();
-                let mean = v.iter().sum::<f64>() / v.len() as f64;
-                let min = v.iter().cloned().fold(f64::INFINITY, f64::min);
-                format!("{mean:.1} ({min:.1})")
+                mean_min(&v, 1)
             };
             println!(
                 "| {} | {t} | {} | {} | {} | {} |",

@@ -2,6 +2,7 @@
 use nalgebra::Point3;
 use psgrasp_fusion::{fuse_normal_grid, FusionConfig, NormalGrid};
 use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, Workspace};
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 /// The benches' input: a procedural 12-object bin scene rendered top-down and fused into `workspace`.
@@ -36,4 +37,24 @@ pub fn bench_threads() -> Vec<usize> {
 /// Milliseconds.
 pub fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
+}
+
+/// The model directory: the first non-flag argument, else `$env_var`, else `models/<default>` in
+/// the repository.
+pub fn model_dir(env_var: &str, default: &str) -> PathBuf {
+    let arg = std::env::args().skip(1).find(|a| !a.starts_with('-'));
+    arg.map(PathBuf::from)
+        .or_else(|| std::env::var_os(env_var).map(PathBuf::from))
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../../models")
+                .join(default)
+        })
+}
+
+/// `"mean (min)"` of millisecond values with `decimals` decimals.
+pub fn mean_min(v: &[f64], decimals: usize) -> String {
+    let mean = v.iter().sum::<f64>() / v.len() as f64;
+    let min = v.iter().cloned().fold(f64::INFINITY, f64::min);
+    format!("{mean:.decimals$} ({min:.decimals$})")
 }
