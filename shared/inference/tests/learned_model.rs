@@ -21,7 +21,7 @@ use psgrasp_inference::{
 use std::path::{Path, PathBuf};
 
 mod common;
-use common::{assert_close, Reference};
+use common::{assert_card_mismatches_are_refused, assert_close, Reference};
 
 fn model_dir() -> PathBuf {
     std::env::var_os("PSGRASP_TEST_MODEL_DIR")
@@ -359,43 +359,7 @@ fn backend_builds_from_toml_config() {
     assert_eq!(backend.name(), "learned-tract");
     backend_for_workspace(&cfg, &workspace(), gripper()).unwrap();
     // The pipeline's workspace or gripper differs from the card: refused at start-up.
-    let other = Workspace {
-        dims: [
-            workspace().dims[0] * 2,
-            workspace().dims[1],
-            workspace().dims[2],
-        ],
-        ..workspace()
-    };
-    assert!(matches!(
-        backend_for_workspace(&cfg, &other, gripper()),
-        Err(InferenceError::Model(ModelError::Mismatch {
-            field: "grid.dims",
-            ..
-        }))
-    ));
-    let wide = GripperModel {
-        max_opening_m: 0.1,
-        ..gripper()
-    };
-    assert!(matches!(
-        backend_from_config(&cfg, wide),
-        Err(InferenceError::Model(ModelError::Mismatch {
-            field: "gripper.max_opening_m",
-            ..
-        }))
-    ));
-    let long = GripperModel {
-        finger_size_m: [0.021, 0.026, 0.06],
-        ..gripper()
-    };
-    assert!(matches!(
-        backend_for_workspace(&cfg, &workspace(), long),
-        Err(InferenceError::Model(ModelError::Mismatch {
-            field: "gripper.approach_depth_m",
-            ..
-        }))
-    ));
+    assert_card_mismatches_are_refused(&cfg, workspace(), gripper());
     let missing: BackendConfig =
         toml::from_str("kind = \"learned\"\nmodel_dir = \"/nonexistent/psgrasp-model\"\n").unwrap();
     assert!(matches!(

@@ -24,7 +24,7 @@ use psgrasp_inference::{
 use std::path::{Path, PathBuf};
 
 mod common;
-use common::{assert_close, Reference};
+use common::{assert_card_mismatches_are_refused, assert_close, Reference};
 
 // ---------------------------------------------------------------------------------------------
 // Decoding on hand-made output grids
@@ -581,50 +581,7 @@ fn the_backend_config_round_trips_through_toml() {
 #[test]
 fn pipeline_mismatches_are_refused_at_start_up() {
     let cfg = BackendConfig::Vgn(vgn_config(RuntimeKind::Tract, None));
-    let other = Workspace {
-        dims: [32, 16, 16],
-        ..workspace()
-    };
-    assert!(matches!(
-        backend_for_workspace(&cfg, &other, gripper()),
-        Err(InferenceError::Model(ModelError::Mismatch {
-            field: "grid.dims",
-            ..
-        }))
-    ));
-    let finer = Workspace {
-        voxel_size_m: 0.008,
-        ..workspace()
-    };
-    assert!(matches!(
-        backend_for_workspace(&cfg, &finer, gripper()),
-        Err(InferenceError::Model(ModelError::Mismatch {
-            field: "grid.voxel_size_m",
-            ..
-        }))
-    ));
-    let wide = GripperModel {
-        max_opening_m: 0.1,
-        ..gripper()
-    };
-    assert!(matches!(
-        backend_from_config(&cfg, wide),
-        Err(InferenceError::Model(ModelError::Mismatch {
-            field: "gripper.max_opening_m",
-            ..
-        }))
-    ));
-    let long = GripperModel {
-        finger_size_m: [0.021, 0.026, 0.06],
-        ..gripper()
-    };
-    assert!(matches!(
-        backend_for_workspace(&cfg, &workspace(), long),
-        Err(InferenceError::Model(ModelError::Mismatch {
-            field: "gripper.approach_depth_m",
-            ..
-        }))
-    ));
+    assert_card_mismatches_are_refused(&cfg, workspace(), gripper());
     let missing = BackendConfig::Vgn(VgnConfig {
         model_dir: "/nonexistent/psgrasp-vgn".into(),
         ..VgnConfig::default()

@@ -1,5 +1,10 @@
 //! Helpers shared by the model tests (`learned_model.rs`, `vgn_model.rs`): the PyTorch reference
 //! tensors exported with a model directory and the agreement check against them.
+use psgrasp_geometry::{GripperModel, Workspace};
+use psgrasp_inference::learned::ModelError;
+use psgrasp_inference::{
+    backend_for_workspace, backend_from_config, BackendConfig, InferenceError,
+};
 use safetensors::SafeTensors;
 use std::collections::HashMap;
 use std::path::Path;
@@ -72,5 +77,49 @@ pub fn assert_close(name: &str, ours: &[f32], reference: &[f32]) {
         "{name}: max abs difference {worst} at {at} ({} vs {})",
         ours[at],
         reference[at]
+    );
+}
+
+/// Asserts that `cfg` (whose model was exported for `workspace` and `gripper`) is refused at
+/// start-up, naming the card field, when the pipeline's grid dims, voxel size, maximum opening or
+/// approach depth differ from the card.
+pub fn assert_card_mismatches_are_refused(
+    cfg: &BackendConfig,
+    workspace: Workspace,
+    gripper: GripperModel,
+) {
+    let refused = |result: Result<_, InferenceError>, expected: &str| match result {
+        Err(InferenceError::Model(ModelError::Mismatch { field, .. })) => {
+            assert_eq!(field, expected)
+        }
+        Err(e) => panic!("{expected}: expected a card mismatch, got {e}"),
+        Ok(_) => panic!("{expected}: a mismatching pipeline was accepted"),
+    };
+    let [x, y, z] = workspace.dims;
+    let other = Workspace {
+        dims: [x * 2, y, z],
+        ..workspace
+    };
+    refused(backend_for_workspace(cfg, &other, gripper), "grid.dims");
+    let finer = Workspace {
+        voxel_size_m: 0.008,
+        ..workspace
+    };
+    refused(
+        backend_for_workspace(cfg, &finer, gripper),
+        "grid.voxel_size_m",
+    );
+    let wide = GripperModel {
+        max_opening_m: 0.1,
+        ..gripper
+    };
+    refused(backend_from_config(cfg, wide), "gripper.max_opening_m");
+    let long = GripperModel {
+        finger_size_m: [0.021, 0.026, 0.06],
+        ..gripper
+    };
+    refused(
+        backend_for_workspace(cfg, &workspace, long),
+        "gripper.approach_depth_m",
     );
 }
