@@ -227,18 +227,23 @@ def _open_log(run_dir: Path, resume_step: int, fields: list[str] = LOG_FIELDS):
     return f, w
 
 
-def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: bool = True, log=print,
-          stop_at: int | None = None) -> dict:
-    """Train (or resume) a run; returns the final validation metrics.
+def fit(cfg: Config, data: Path, run_dir: Path, make_net, step_fn, evaluate_fn, export_fn, log_fields: list[str],
+        describe: str, progress, resume: bool = False, export: bool = True, log=print,
+        stop_at: int | None = None) -> dict:
+    """The training loop every model variant shares: run directory, exact resume, learning-rate
+    schedule, per-step CSV log, validation, checkpoints, the wall-clock and --stop-at limits and
+    the final export.
 
-    stop_at: stop (save, validate, export) once this step is reached, like the wall-clock limit
-    (the learning-rate schedule still spans train.iterations; resume continues it)."""
+    make_net(cfg) builds the network; step_fn(net, scene, g, device, step) returns the loss terms
+    of one scene ("loss" included); evaluate_fn(net, ds, cfg, device, max_scenes) the validation
+    metrics; export_fn(net, cfg, info, out_dir, step, validation, reference_scene, log=) writes the
+    model directory; progress(values) the middle of a progress line; describe names the model."""
     run_dir = Path(run_dir)
     device = setup_torch(cfg)
     ds = SceneDataset(data, cfg)
     apply_dataset_geometry(cfg, ds.info)
     torch.manual_seed(cfg.seed)
-    net = GraspNet(cfg)
+    net = make_net(cfg)
     start = 0
     elapsed0 = 0.0
     opt_state = None
@@ -258,9 +263,9 @@ def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: 
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json(run_dir / "config.json", cfg.to_dict())
     write_json(run_dir / "dataset.json", ds.info.__dict__)
-    logf, logw = _open_log(run_dir, start)
+    logf, logw = _open_log(run_dir, start, log_fields)
     t_cfg = cfg.train
-    log(f"training {cfg.model_name}: {ds.info.train_scenes} train / {ds.info.val_scenes} val scenes, "
+    log(f"training {describe}: {ds.info.train_scenes} train / {ds.info.val_scenes} val scenes, "
         f"{sum(p.numel() for p in net.parameters())} parameters, device {device}, threads {torch.get_num_threads()}, "
         f"steps {start}..{t_cfg.iterations}")
     t0 = time.monotonic()
@@ -282,7 +287,7 @@ def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: 
             for group in opt.param_groups:
                 group["lr"] = lr
             scene, g = scene_for_step(ds, cfg, step)
-            out = training_step(net, scene, cfg, g, device, step >= t_cfg.mlp_warmup_iterations)
+            out = step_fn(net, scene, g, device, step)
             loss = out["loss"]
             if not torch.isfinite(loss):
                 raise RunError(f"non-finite loss at step {step} (scene {scene.index}): "
@@ -293,34 +298,50 @@ def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: 
             step += 1
             secs = time.monotonic() - ts
             out = {k: float(v.detach()) if isinstance(v, torch.Tensor) else v for k, v in out.items()}
-            row = {k: f"{out[k]:.6g}" if k in out else "" for k in LOG_FIELDS}
+            row = {k: f"{out[k]:.6g}" if k in out else "" for k in log_fields}
             row.update(step=step, lr=f"{lr:.6g}", seconds=f"{secs:.3f}",
                        elapsed_s=f"{elapsed0 + time.monotonic() - t0:.1f}")
             logw.writerow(row)
             if step % t_cfg.log_every == 0 or step == t_cfg.iterations:
                 logf.flush()
-                parts = " ".join(f"{k} {float(out[k]):.4f}" for k in ("loss", "label", "baseline", "approach",
-                                                                       "width", "quality", "collision") if k in out)
-                hr = f" hit {out['hit_rate']:.2f}" if "hit_rate" in out else ""
-                log(f"step {step}/{t_cfg.iterations} {parts}{hr} lr {lr:.2e} {secs:.2f} s/step")
+                log(f"step {step}/{t_cfg.iterations} {progress(out)} lr {lr:.2e} {secs:.2f} s/step")
             if t_cfg.validate_every > 0 and step % t_cfg.validate_every == 0 and step < t_cfg.iterations:
-                validation = evaluate(net, ds, cfg, device, t_cfg.max_val_scenes)
+                validation = evaluate_fn(net, ds, cfg, device, t_cfg.max_val_scenes)
                 log(f"validation @ {step}: {validation}")
             if t_cfg.checkpoint_every > 0 and step % t_cfg.checkpoint_every == 0:
                 save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed0 + time.monotonic() - t0)
     finally:
         logf.close()
-    validation = evaluate(net, ds, cfg, device, t_cfg.max_val_scenes)
+    validation = evaluate_fn(net, ds, cfg, device, t_cfg.max_val_scenes)
     log(f"validation @ {step}: {validation}")
     write_json(run_dir / "validation.json", {"step": step, **validation})
     save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed0 + time.monotonic() - t0)
     if export:
         ref = ds.root / (ds.val_entries or ds.train_entries)[0]["file"]
-        export_model(net.cpu(), cfg, ds.info, run_dir / "model", step, validation, ref, log=log)
+        export_fn(net.cpu(), cfg, ds.info, run_dir / "model", step, validation, ref, log=log)
         log(f"exported {run_dir / 'model'}")
     if stopped:
         log("stopped early; continue with --resume")
     return validation
+
+
+def train(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: bool = True, log=print,
+          stop_at: int | None = None) -> dict:
+    """Train (or resume) a run; returns the final validation metrics.
+
+    stop_at: stop (save, validate, export) once this step is reached, like the wall-clock limit
+    (the learning-rate schedule still spans train.iterations; resume continues it)."""
+
+    def step_fn(net, scene, g, device, step):
+        return training_step(net, scene, cfg, g, device, step >= cfg.train.mlp_warmup_iterations)
+
+    def progress(out):
+        parts = " ".join(f"{k} {float(out[k]):.4f}" for k in ("loss", "label", "baseline", "approach", "width",
+                                                               "quality", "collision") if k in out)
+        return parts + (f" hit {out['hit_rate']:.2f}" if "hit_rate" in out else "")
+
+    return fit(cfg, data, run_dir, GraspNet, step_fn, evaluate, export_model, LOG_FIELDS, cfg.model_name, progress,
+               resume=resume, export=export, log=log, stop_at=stop_at)
 
 
 def hitrate_report(cfg: Config, data: Path, scenes: int, radii_m: list[float], log=print) -> dict:

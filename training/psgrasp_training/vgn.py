@@ -24,7 +24,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import time
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +33,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from . import __version__
-from .checkpoint import DatasetInfo, RunError, load_checkpoint, save_checkpoint, write_json
+from .checkpoint import DatasetInfo, load_checkpoint
 from .config import Config
 from .data import Scene, SceneDataset, read_scene
 from .decode import approach_vectors
@@ -236,93 +235,23 @@ def evaluate_vgn(net: VgnNet, ds: SceneDataset, cfg: Config, device: torch.devic
 
 def train_vgn(cfg: Config, data: Path, run_dir: Path, resume: bool = False, export: bool = True, log=print,
               stop_at: int | None = None) -> dict:
-    """Train (or resume) a VGN-style run: same run-directory layout, schedule, seeds and flip
-    augmentation as :func:`psgrasp_training.train.train`; exports ``RUN/model`` at the end."""
-    from .train import _open_log, apply_dataset_geometry, learning_rate, scene_for_step, setup_torch
+    """Train (or resume) a VGN-style run with the shared loop (:func:`psgrasp_training.train.fit`:
+    same run-directory layout, schedule, seeds and flip augmentation); exports ``RUN/model``."""
+    from .train import fit
 
-    run_dir = Path(run_dir)
-    device = setup_torch(cfg)
-    ds = SceneDataset(data, cfg)
-    apply_dataset_geometry(cfg, ds.info)
-    torch.manual_seed(cfg.seed)
-    net = VgnNet(cfg.model.base_channels)
-    start, elapsed0, opt_state = 0, 0.0, None
-    if resume:
-        state = load_checkpoint(run_dir)
-        old: Config = state["config"]
-        if old.to_dict()["model"] != cfg.to_dict()["model"] or old.variant != cfg.variant or old.seed != cfg.seed:
-            raise RunError(f"{run_dir}: --resume with a different model, variant or seed than the checkpoint")
-        net.load_state_dict(state["model"])
-        start, elapsed0, opt_state = state["step"], state.get("elapsed_s", 0.0), state["optimizer"]
-    net.to(device).train()
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.train.lr)
-    if opt_state is not None:
-        opt.load_state_dict(opt_state)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_json(run_dir / "config.json", cfg.to_dict())
-    write_json(run_dir / "dataset.json", ds.info.__dict__)
-    logf, logw = _open_log(run_dir, start, LOG_FIELDS)
-    t = cfg.train
-    log(f"training {cfg.model_name} (VGN-style): {ds.info.train_scenes} train / {ds.info.val_scenes} val scenes, "
-        f"{sum(p.numel() for p in net.parameters())} parameters, device {device}, threads {torch.get_num_threads()}, "
-        f"steps {start}..{t.iterations}")
-    t0 = time.monotonic()
-    validation, step, stopped = None, start, False
-    try:
-        while step < t.iterations:
-            if t.max_minutes > 0 and time.monotonic() - t0 > 60.0 * t.max_minutes:
-                log(f"wall-clock limit of {t.max_minutes} min reached at step {step}: stopping")
-                stopped = True
-                break
-            if stop_at is not None and step >= stop_at:
-                log(f"stopping at step {step} (--stop-at)")
-                stopped = True
-                break
-            ts = time.monotonic()
-            lr = learning_rate(cfg, step)
-            for group in opt.param_groups:
-                group["lr"] = lr
-            scene, _ = scene_for_step(ds, cfg, step)
-            targets = _to(vgn_targets(scene, dilate=cfg.loss.vgn_positive_dilation_voxels), device)
-            normals = scene.normals.to(device)
-            region = negative_region(normals, cfg.loss.vgn_negative_band_voxels)
-            out = vgn_loss(net(normals.unsqueeze(0)), targets, scene.voxel_size_m, region,
-                           cfg.loss.vgn_positive_weight)
-            if not torch.isfinite(out["loss"]):
-                raise RunError(f"non-finite loss at step {step} (scene {scene.index})")
-            opt.zero_grad(set_to_none=True)
-            out["loss"].backward()
-            opt.step()
-            step += 1
-            secs = time.monotonic() - ts
-            vals = {k: float(v.detach()) if isinstance(v, torch.Tensor) else v for k, v in out.items()}
-            row = {k: f"{vals[k]:.6g}" for k in LOG_FIELDS if k in vals}
-            row.update(step=step, lr=f"{lr:.6g}", seconds=f"{secs:.3f}",
-                       elapsed_s=f"{elapsed0 + time.monotonic() - t0:.1f}")
-            logw.writerow(row)
-            if step % t.log_every == 0 or step == t.iterations:
-                logf.flush()
-                log(f"step {step}/{t.iterations} loss {vals['loss']:.4f} quality {vals['quality']:.4f} "
-                    f"rotation {vals['rotation']:.4f} width {vals['width']:.3f} positives {vals['positives']:.0f} "
-                    f"lr {lr:.2e} {secs:.2f} s/step")
-            if t.validate_every > 0 and step % t.validate_every == 0 and step < t.iterations:
-                validation = evaluate_vgn(net, ds, cfg, device, t.max_val_scenes)
-                log(f"validation @ {step}: {validation}")
-            if t.checkpoint_every > 0 and step % t.checkpoint_every == 0:
-                save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed0 + time.monotonic() - t0)
-    finally:
-        logf.close()
-    validation = evaluate_vgn(net, ds, cfg, device, t.max_val_scenes)
-    log(f"validation @ {step}: {validation}")
-    write_json(run_dir / "validation.json", {"step": step, **validation})
-    save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed0 + time.monotonic() - t0)
-    if export:
-        ref = ds.root / (ds.val_entries or ds.train_entries)[0]["file"]
-        export_vgn(net.cpu(), cfg, ds.info, run_dir / "model", step, validation, ref, log=log)
-        log(f"exported {run_dir / 'model'}")
-    if stopped:
-        log("stopped early; continue with --resume")
-    return validation
+    def step_fn(net, scene, _g, device, _step):
+        targets = _to(vgn_targets(scene, dilate=cfg.loss.vgn_positive_dilation_voxels), device)
+        normals = scene.normals.to(device)
+        region = negative_region(normals, cfg.loss.vgn_negative_band_voxels)
+        return vgn_loss(net(normals.unsqueeze(0)), targets, scene.voxel_size_m, region, cfg.loss.vgn_positive_weight)
+
+    def progress(v):
+        return (f"loss {v['loss']:.4f} quality {v['quality']:.4f} rotation {v['rotation']:.4f} "
+                f"width {v['width']:.3f} positives {v['positives']:.0f}")
+
+    return fit(cfg, data, run_dir, lambda c: VgnNet(c.model.base_channels), step_fn, evaluate_vgn, export_vgn,
+               LOG_FIELDS, f"{cfg.model_name} (VGN-style)", progress, resume=resume, export=export, log=log,
+               stop_at=stop_at)
 
 
 def build_vgn_card(cfg: Config, info: DatasetInfo, step: int, validation: dict | None, sha: str) -> dict[str, Any]:
