@@ -9,15 +9,14 @@
 //! comparable scene counts everywhere. Finished scenes are appended to `OUT/records.jsonl`; a
 //! rerun with the same `--out` skips them. At the end `OUT/summary.md`, `OUT/summary.json` and
 //! `OUT/summary.png` are written and the Markdown is printed.
-use crate::detectors::{default_detectors, DetectorList, DetectorSpec};
-use crate::protocol::{run_scene, ProtocolConfig};
+use crate::detectors::{default_detectors, BuiltDetector, DetectorList, DetectorSpec};
+use crate::protocol::{run_scene_with, ProtocolConfig};
 use crate::records::{write_atomic, RecordsFile, RunDescription, SceneKey, RECORDS_VERSION};
 use crate::report::summarize;
 use crate::EvalError;
 use anyhow::Context;
 use psgrasp_datagen::cli::{build_library, default_mesh_dir};
 use psgrasp_datagen::{Difficulty, ObjectSource};
-use psgrasp_inference::InferenceBackend;
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -305,7 +304,7 @@ fn run_jobs(
             let (todo, next, stop, library, meshes, by_name) =
                 (&todo, &next, &stop, &library, &meshes, &by_name);
             s.spawn(move || {
-                let mut backends: HashMap<String, Box<dyn InferenceBackend>> = HashMap::new();
+                let mut backends: HashMap<String, BuiltDetector> = HashMap::new();
                 loop {
                     if stop.load(Ordering::Relaxed) {
                         break;
@@ -325,13 +324,13 @@ fn run_jobs(
                         let backend = backends
                             .get_mut(&key.detector)
                             .expect("inserted just above");
-                        run_scene(
+                        run_scene_with(
                             key.level,
                             key.seed,
                             key.scene,
                             library,
                             meshes,
-                            backend.as_mut(),
+                            backend.as_detector(),
                             protocol,
                         )
                     })();

@@ -18,7 +18,15 @@
 //! name = "vgn"
 //! label = "VGN (retrained)"
 //! backend = { kind = "vgn", model_dir = "models/vgn" }
+//!
+//! [[detector]]
+//! name = "oracle"
+//! label = "Ground-truth labels (upper bound)"
+//! backend = { kind = "oracle" }
 //! ```
+//!
+//! `kind = "oracle"` is not a perception backend: it proposes the dataset labeler's grasps on the
+//! true scene ([`crate::Detector::Oracle`]), the bound a perfect detector could reach.
 //!
 //! Without a file, [`default_detectors`] gives the analytic baseline plus one detector per model
 //! directory (a folder with a `card.json`) under `models/`: a VGN detector for a VGN card, a
@@ -26,8 +34,99 @@
 use crate::protocol::ProtocolConfig;
 use crate::EvalError;
 use psgrasp_inference::{backend_for_workspace, BackendConfig, InferenceBackend, LearnedConfig};
-use serde::{Deserialize, Serialize};
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::{Path, PathBuf};
+
+/// What proposes a detector's grasps: a perception backend, or the ground-truth oracle.
+/// Written as a backend table; the oracle is `{ kind = "oracle" }`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DetectorBackend {
+    /// An inference backend on the fused normal grid (as the pipeline runs it).
+    Backend(BackendConfig),
+    /// The dataset labeler on the true scene ([`crate::Detector::Oracle`]).
+    Oracle,
+}
+
+/// The `kind` of [`DetectorBackend::Oracle`].
+pub const ORACLE_KIND: &str = "oracle";
+
+impl DetectorBackend {
+    /// The kind name (`analytic`, `learned`, `vgn`, `oracle`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            DetectorBackend::Backend(b) => b.kind(),
+            DetectorBackend::Oracle => ORACLE_KIND,
+        }
+    }
+
+    /// The inference backend settings (`None` for the oracle).
+    pub fn backend(&self) -> Option<&BackendConfig> {
+        match self {
+            DetectorBackend::Backend(b) => Some(b),
+            DetectorBackend::Oracle => None,
+        }
+    }
+}
+
+impl From<BackendConfig> for DetectorBackend {
+    fn from(b: BackendConfig) -> Self {
+        DetectorBackend::Backend(b)
+    }
+}
+
+impl Serialize for DetectorBackend {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            DetectorBackend::Backend(b) => b.serialize(s),
+            DetectorBackend::Oracle => {
+                use serde::ser::SerializeMap;
+                let mut m = s.serialize_map(Some(1))?;
+                m.serialize_entry("kind", ORACLE_KIND)?;
+                m.end()
+            }
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for DetectorBackend {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::Error;
+        // Through a JSON value, so that backend settings keep their own error messages.
+        let value = serde_json::Value::deserialize(d)?;
+        match value.as_object() {
+            Some(table) if table.get("kind").and_then(|k| k.as_str()) == Some(ORACLE_KIND) => {
+                match table.keys().find(|k| *k != "kind") {
+                    Some(extra) => Err(D::Error::custom(format!(
+                        "the oracle takes no settings (`{extra}`); its labeler settings are the \
+                         protocol's `scenes.labels`"
+                    ))),
+                    None => Ok(DetectorBackend::Oracle),
+                }
+            }
+            _ => BackendConfig::deserialize(value)
+                .map(DetectorBackend::Backend)
+                .map_err(D::Error::custom),
+        }
+    }
+}
+
+/// A built detector: what [`crate::Detector`] borrows for each scene.
+pub enum BuiltDetector {
+    /// A ready inference backend.
+    Backend(Box<dyn InferenceBackend>),
+    /// The ground-truth oracle.
+    Oracle,
+}
+
+impl BuiltDetector {
+    /// Borrowed for [`crate::run_scene_with`].
+    pub fn as_detector(&mut self) -> crate::Detector<'_> {
+        match self {
+            BuiltDetector::Backend(b) => crate::Detector::Backend(b.as_mut()),
+            BuiltDetector::Oracle => crate::Detector::Oracle,
+        }
+    }
+}
 
 /// One detector: a name (used on the command line and in records) and its backend settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -38,8 +137,8 @@ pub struct DetectorSpec {
     /// Display name for tables and plots (defaults to `name`).
     #[serde(default)]
     pub label: Option<String>,
-    /// The backend and its settings.
-    pub backend: BackendConfig,
+    /// The backend and its settings (or the oracle).
+    pub backend: DetectorBackend,
 }
 
 /// The detector list file: `[[detector]]` tables.
@@ -57,7 +156,7 @@ impl DetectorSpec {
         Self {
             name: "analytic".into(),
             label: Some("Analytic antipodal (GPD-style)".into()),
-            backend: BackendConfig::Analytic(Default::default()),
+            backend: BackendConfig::Analytic(Default::default()).into(),
         }
     }
 
@@ -71,7 +170,8 @@ impl DetectorSpec {
                 model_dir,
                 threads: 1,
                 ..Default::default()
-            }),
+            })
+            .into(),
         }
     }
 
@@ -82,7 +182,7 @@ impl DetectorSpec {
             name: name.into(),
             label: None,
             // One runtime thread: the evaluation runs scenes in parallel (`--jobs`).
-            backend: BackendConfig::for_model_dir(&dir, 1),
+            backend: BackendConfig::for_model_dir(&dir, 1).into(),
         }
     }
 
@@ -112,20 +212,30 @@ impl DetectorSpec {
     /// The backend configuration as the evaluation runs it: an analytic backend without a
     /// contact region gets the bin interior (as the inference stage does), so the thin bin walls
     /// are never grasped.
-    pub fn effective_backend(&self, protocol: &ProtocolConfig) -> BackendConfig {
-        self.backend
-            .clone()
-            .with_bin_interior_contacts(&protocol.scenes.bin, protocol.contact_region_inset_m)
+    pub fn effective_backend(&self, protocol: &ProtocolConfig) -> DetectorBackend {
+        match &self.backend {
+            DetectorBackend::Backend(b) => DetectorBackend::Backend(
+                b.clone().with_bin_interior_contacts(
+                    &protocol.scenes.bin,
+                    protocol.contact_region_inset_m,
+                ),
+            ),
+            DetectorBackend::Oracle => DetectorBackend::Oracle,
+        }
     }
 
     /// Builds the backend for the protocol's workspace and gripper.
-    pub fn build(&self, protocol: &ProtocolConfig) -> Result<Box<dyn InferenceBackend>, EvalError> {
+    pub fn build(&self, protocol: &ProtocolConfig) -> Result<BuiltDetector, EvalError> {
         self.validate()?;
+        let DetectorBackend::Backend(backend) = self.effective_backend(protocol) else {
+            return Ok(BuiltDetector::Oracle);
+        };
         backend_for_workspace(
-            &self.effective_backend(protocol),
+            &backend,
             &protocol.scenes.workspace,
             protocol.scenes.gripper,
         )
+        .map(BuiltDetector::Backend)
         .map_err(|source| EvalError::Detector {
             name: self.name.clone(),
             source,
@@ -234,12 +344,12 @@ mod tests {
         )
         .unwrap();
         assert_eq!(list.detectors.len(), 3);
-        let BackendConfig::Vgn(v) = &list.detectors[2].backend else {
+        let Some(BackendConfig::Vgn(v)) = list.detectors[2].backend.backend() else {
             panic!("vgn expected")
         };
         assert_eq!(v.quality_threshold, 0.8);
         assert_eq!(v.model_dir, PathBuf::from("models/vgn"));
-        let BackendConfig::Analytic(a) = &list.detectors[0].backend else {
+        let Some(BackendConfig::Analytic(a)) = list.detectors[0].backend.backend() else {
             panic!("analytic expected")
         };
         assert_eq!(a.min_quality, 0.6);
@@ -262,6 +372,27 @@ mod tests {
             "[[detector]]\nname = \"a\"\nbakend = { kind = \"analytic\" }\n"
         )
         .is_err());
+        // Backend settings keep their own errors; the oracle takes no settings.
+        let err = DetectorList::from_toml(
+            "[[detector]]\nname = \"a\"\nbackend = { kind = \"analytic\", min_qualty = 1 }\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("min_qualty"), "{err}");
+        let oracle =
+            DetectorList::from_toml("[[detector]]\nname = \"o\"\nbackend = { kind = \"oracle\" }\n")
+                .unwrap();
+        assert_eq!(oracle.detectors[0].backend, DetectorBackend::Oracle);
+        assert!(DetectorList::from_toml(
+            "[[detector]]\nname = \"o\"\nbackend = { kind = \"oracle\", seed = 1 }\n"
+        )
+        .is_err());
+        // Round trip through run.json's JSON.
+        for d in list.detectors.iter().chain(&oracle.detectors) {
+            let json = serde_json::to_string(&d.backend).unwrap();
+            let back: DetectorBackend = serde_json::from_str(&json).unwrap();
+            assert_eq!(back, d.backend);
+        }
     }
 
     #[test]
@@ -287,12 +418,12 @@ mod tests {
         let list = default_detectors(dir.path());
         let names: Vec<&str> = list.detectors.iter().map(|d| d.name.as_str()).collect();
         assert_eq!(names, ["analytic", "vgn", "w-kappa-8app", "wo-kappa-1app"]);
-        let BackendConfig::Learned(l) = &list.detectors[2].backend else {
+        let Some(BackendConfig::Learned(l)) = list.detectors[2].backend.backend() else {
             panic!("learned expected")
         };
         assert_eq!(l.model_dir, dir.path().join("w-kappa-8app"));
         assert_eq!(l.threads, 1);
-        let BackendConfig::Vgn(v) = &list.detectors[1].backend else {
+        let Some(BackendConfig::Vgn(v)) = list.detectors[1].backend.backend() else {
             panic!("vgn expected")
         };
         assert_eq!(v.model_dir, dir.path().join("vgn"));
@@ -302,7 +433,9 @@ mod tests {
     #[test]
     fn analytic_contacts_are_kept_inside_the_bin() {
         let proto = ProtocolConfig::default();
-        let BackendConfig::Analytic(a) = DetectorSpec::analytic().effective_backend(&proto) else {
+        let DetectorBackend::Backend(BackendConfig::Analytic(a)) =
+            DetectorSpec::analytic().effective_backend(&proto)
+        else {
             panic!("analytic expected")
         };
         let region = a.contact_region.unwrap();

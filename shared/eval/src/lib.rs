@@ -4,7 +4,8 @@
 //!   force-limited fingers on prismatic impulse joints), judged as success or a named failure.
 //! - [`protocol`]: the paper's clearing protocol on one test scene: render → fusion → detector →
 //!   selection → execution, round after round.
-//! - [`detectors`]: detectors as data (named `BackendConfig`s, a TOML list).
+//! - [`detectors`]: detectors as data (named `BackendConfig`s or the ground-truth oracle, a TOML
+//!   list).
 //! - [`records`]: the resumable run directory (`run.json`, `records.jsonl`, one JSON line per
 //!   attempt and per finished scene).
 //! - [`report`] and [`plot`]: SR/CR per level and detector as Markdown, JSON and a PNG chart.
@@ -24,13 +25,14 @@ pub mod records;
 pub mod report;
 
 pub use cli::{run_eval, EvalArgs};
-pub use detectors::{default_detectors, DetectorList, DetectorSpec};
+pub use detectors::{default_detectors, BuiltDetector, DetectorBackend, DetectorList, DetectorSpec};
 pub use execute::{
     execute_grasp, hand_collides, pregrasp_pose, Execution, ExecutionConfig, ExecutionReport,
     GraspCommand, GraspOutcome,
 };
 pub use protocol::{
-    run_scene, scene_seed, AttemptRecord, ProtocolConfig, SceneEnd, SceneRun, SceneSummary,
+    run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, ProtocolConfig, RemainingObject,
+    SceneEnd, SceneRun, SceneSummary,
 };
 
 use std::path::PathBuf;

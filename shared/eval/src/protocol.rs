@@ -18,7 +18,8 @@
 //! [`ProtocolConfig::max_consecutive_failures`] failed attempts in a row, or at the attempt cap.
 use crate::execute::{execute_grasp, ExecutionConfig, GraspCommand, GraspOutcome};
 use crate::EvalError;
-use psgrasp_datagen::{derive_seed, Difficulty, GenerationConfig};
+use psgrasp_datagen::{derive_seed, generate_labels, Difficulty, GenerationConfig};
+use psgrasp_geometry::{CameraModel, GraspConfiguration};
 use psgrasp_fusion::fuse_normal_grid;
 use psgrasp_inference::InferenceBackend;
 use psgrasp_selection::{select, RejectionCounts, SelectionConfig};
@@ -166,6 +167,59 @@ pub struct SceneSummary {
     /// Why selection found nothing on the last frame (scenes ending in [`SceneEnd::NoGrasp`]).
     #[serde(default)]
     pub final_rejections: Option<RejectionCounts>,
+    /// The objects left in the bin at the end (failure analysis).
+    #[serde(default)]
+    pub remaining_objects: Vec<RemainingObject>,
+}
+
+/// An object left in the bin when a scene ended.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RemainingObject {
+    /// Its name in the object library.
+    pub name: String,
+    /// Its family (`box`, `sphere`, …).
+    pub kind: String,
+    /// Size of its world-frame bounding box along x, y, z, metres.
+    pub extent_m: [f32; 3],
+    /// Centre of that box relative to the centre of the bin floor, metres.
+    pub center_m: [f32; 3],
+    /// Gap between that box and the nearest side wall, metres (negative: it overlaps a wall's
+    /// plane, e.g. leaning on it).
+    pub wall_gap_m: f32,
+}
+
+impl RemainingObject {
+    /// Every object of `scene`.
+    pub fn of_scene(scene: &Scene) -> Vec<Self> {
+        let bin = scene.bin();
+        let c = bin.floor_center;
+        let [lx, ly, _] = bin.inner_size_m;
+        (0..scene.object_count())
+            .filter_map(|i| {
+                let (lo, hi) = scene.object_aabb(i)?;
+                let o = &scene.objects()[i];
+                let gap = [
+                    lo.x - (c.x - 0.5 * lx),
+                    (c.x + 0.5 * lx) - hi.x,
+                    lo.y - (c.y - 0.5 * ly),
+                    (c.y + 0.5 * ly) - hi.y,
+                ]
+                .into_iter()
+                .fold(f32::INFINITY, f32::min);
+                Some(Self {
+                    name: o.spec.name.clone(),
+                    kind: format!("{:?}", o.spec.kind).to_lowercase(),
+                    extent_m: (hi - lo).into(),
+                    center_m: [
+                        0.5 * (lo.x + hi.x) - c.x,
+                        0.5 * (lo.y + hi.y) - c.y,
+                        0.5 * (lo.z + hi.z) - c.z,
+                    ],
+                    wall_gap_m: gap,
+                })
+            })
+            .collect()
+    }
 }
 
 /// The result of [`run_scene`].
@@ -182,6 +236,17 @@ pub fn scene_seed(run_seed: u64, index: u64) -> u64 {
     derive_seed(run_seed, index)
 }
 
+/// What proposes the grasps of each round.
+pub enum Detector<'a> {
+    /// A perception backend on the fused normal grid (the pipeline's path).
+    Backend(&'a mut dyn InferenceBackend),
+    /// Ground truth instead of perception: the dataset's labeler
+    /// ([`psgrasp_datagen::generate_labels`] with the protocol's `scenes.labels`) on the true
+    /// scene, every label a configuration with quality `q` and collision scores 1 (free) or 0.
+    /// An upper bound of what a perfect detector reaches under this protocol and physics.
+    Oracle,
+}
+
 /// Runs the clearing protocol on test scene `index` of `level` for `run_seed` with `detector`.
 /// `library`/`meshes` are the object source (the level picks its test objects from it).
 /// Deterministic for the same inputs (wall times aside).
@@ -192,6 +257,27 @@ pub fn run_scene(
     library: &ObjectLibrary,
     meshes: &MeshLibrary,
     detector: &mut dyn InferenceBackend,
+    cfg: &ProtocolConfig,
+) -> Result<SceneRun, EvalError> {
+    run_scene_with(
+        level,
+        run_seed,
+        index,
+        library,
+        meshes,
+        Detector::Backend(detector),
+        cfg,
+    )
+}
+
+/// [`run_scene`] for any [`Detector`], the ground-truth oracle included.
+pub fn run_scene_with(
+    level: Difficulty,
+    run_seed: u64,
+    index: u64,
+    library: &ObjectLibrary,
+    meshes: &MeshLibrary,
+    mut detector: Detector<'_>,
     cfg: &ProtocolConfig,
 ) -> Result<SceneRun, EvalError> {
     if level == Difficulty::Train {
@@ -241,7 +327,11 @@ pub fn run_scene(
         let grid = fuse_normal_grid(&depth, &camera, &gen.workspace, &gen.fusion)?;
         let fusion_ms = ms(t);
         let t = Instant::now();
-        let configs = detector.infer(&grid.view(), derive_seed(derive_seed(seed, 4), k))?;
+        let detect_seed = derive_seed(derive_seed(seed, 4), k);
+        let configs = match &mut detector {
+            Detector::Backend(b) => b.infer(&grid.view(), detect_seed)?,
+            Detector::Oracle => oracle_configurations(&scene, &camera, cfg, detect_seed),
+        };
         let inference_ms = ms(t);
         let t = Instant::now();
         let picks = select(
@@ -312,8 +402,32 @@ pub fn run_scene(
         configurations,
         scene_ms: ms(started),
         final_rejections,
+        remaining_objects: RemainingObject::of_scene(&scene),
     };
     Ok(SceneRun { attempts, summary })
+}
+
+/// The ground-truth labels of `scene` as grasp configurations ([`Detector::Oracle`]).
+fn oracle_configurations(
+    scene: &Scene,
+    camera: &CameraModel,
+    cfg: &ProtocolConfig,
+    seed: u64,
+) -> Vec<GraspConfiguration> {
+    let gen = &cfg.scenes;
+    let rendering = scene.render(camera);
+    generate_labels(scene, camera, &rendering, &gen.gripper, &gen.labels, seed)
+        .labels
+        .iter()
+        .map(|l| GraspConfiguration {
+            contact: l.contact,
+            baseline: l.baseline,
+            collision_scores: l.collision_free.map(|free| if free { 1.0 } else { 0.0 }),
+            width: l.width,
+            quality: l.quality,
+            kappa: 0.0,
+        })
+        .collect()
 }
 
 fn ms(t: Instant) -> f64 {

@@ -15,7 +15,7 @@
 use crate::protocol::{AttemptRecord, ProtocolConfig, SceneSummary};
 use crate::EvalError;
 use psgrasp_datagen::Difficulty;
-use psgrasp_inference::BackendConfig;
+use crate::detectors::DetectorBackend;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
 use std::io::Write;
@@ -86,7 +86,7 @@ pub struct RunDescription {
     /// The protocol settings.
     pub protocol: ProtocolConfig,
     /// Every detector run into this directory, by name, with the backend settings it ran with.
-    pub detectors: BTreeMap<String, BackendConfig>,
+    pub detectors: BTreeMap<String, DetectorBackend>,
 }
 
 impl RunDescription {
@@ -297,6 +297,7 @@ fn encode(r: &RecordLine, path: &Path) -> Result<Vec<u8>, EvalError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use psgrasp_inference::BackendConfig;
     use crate::execute::GraspOutcome;
     use crate::protocol::SceneEnd;
 
@@ -344,6 +345,7 @@ mod tests {
             configurations: 30,
             scene_ms: 100.0,
             final_rejections: Some(Default::default()),
+            remaining_objects: Vec::new(),
         }
     }
 
@@ -394,12 +396,12 @@ mod tests {
             version: RECORDS_VERSION,
             object_source: "procedural".into(),
             protocol: ProtocolConfig::default(),
-            detectors: BTreeMap::from([("analytic".to_string(), BackendConfig::default())]),
+            detectors: BTreeMap::from([("analytic".to_string(), BackendConfig::default().into())]),
         };
         let mut stored = base.clone();
         let mut more = base.clone();
         more.detectors
-            .insert("other".into(), BackendConfig::default());
+            .insert("other".into(), BackendConfig::default().into());
         stored.merge(&more, dir).unwrap();
         assert_eq!(stored.detectors.len(), 2);
         let mut changed = base.clone();
@@ -409,7 +411,9 @@ mod tests {
             Err(EvalError::RunMismatch { .. })
         ));
         let mut retuned = base.clone();
-        let BackendConfig::Analytic(a) = retuned.detectors.get_mut("analytic").unwrap() else {
+        let Some(DetectorBackend::Backend(BackendConfig::Analytic(a))) =
+            retuned.detectors.get_mut("analytic")
+        else {
             panic!("analytic expected")
         };
         a.min_quality = 0.9;

@@ -369,6 +369,7 @@ mod tests {
                 configurations: 10,
                 scene_ms: 1.0,
                 final_rejections: None,
+                remaining_objects: Vec::new(),
             },
         }
     }

@@ -238,6 +238,15 @@ impl Scene {
         (index < self.object_count()).then(|| crate::objects::bounding_radius(&self.shapes[index]))
     }
 
+    /// World-frame (workspace-frame) axis-aligned bounds `(min, max)` of object `index`; `None`
+    /// for an unknown index.
+    pub fn object_aabb(&self, index: usize) -> Option<(Point3<f32>, Point3<f32>)> {
+        (index < self.object_count()).then(|| {
+            let aabb = self.shapes[index].compute_aabb(&self.poses[index]);
+            (point_from_glam(aabb.mins), point_from_glam(aabb.maxs))
+        })
+    }
+
     /// Signed distance from `p` to the surface of object `index` (negative inside); `None` for
     /// an unknown index.
     pub fn object_signed_distance(&self, index: usize, p: &Point3<f32>) -> Option<f32> {
