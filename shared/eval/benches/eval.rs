@@ -3,7 +3,7 @@
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use psgrasp_datagen::Difficulty;
 use psgrasp_eval::{
-    execute_grasp, run_scene, DetectorSpec, ExecutionConfig, GraspCommand, ProtocolConfig,
+    execute_grasp, run_scene_with, DetectorSpec, ExecutionConfig, GraspCommand, ProtocolConfig,
 };
 use psgrasp_geometry::{BinModel, GripperModel};
 use psgrasp_sim::{
@@ -112,8 +112,16 @@ fn main() {
             (0usize, 0usize, 0.0, 0usize, 0.0);
         let t = Instant::now();
         for i in 0..scenes {
-            let r = run_scene(level, 0, i, &library, &meshes, backend.as_mut(), &proto)
-                .expect("scene runs");
+            let r = run_scene_with(
+                level,
+                0,
+                i,
+                &library,
+                &meshes,
+                backend.as_detector(),
+                &proto,
+            )
+            .expect("scene runs");
             objects += r.summary.objects;
             attempts += r.attempts.len();
             frames += r.summary.frames as usize;

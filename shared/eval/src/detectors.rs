@@ -214,12 +214,12 @@ impl DetectorSpec {
     /// are never grasped.
     pub fn effective_backend(&self, protocol: &ProtocolConfig) -> DetectorBackend {
         match &self.backend {
-            DetectorBackend::Backend(b) => DetectorBackend::Backend(
-                b.clone().with_bin_interior_contacts(
+            DetectorBackend::Backend(b) => {
+                DetectorBackend::Backend(b.clone().with_bin_interior_contacts(
                     &protocol.scenes.bin,
                     protocol.contact_region_inset_m,
-                ),
-            ),
+                ))
+            }
             DetectorBackend::Oracle => DetectorBackend::Oracle,
         }
     }
@@ -379,9 +379,10 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(err.contains("min_qualty"), "{err}");
-        let oracle =
-            DetectorList::from_toml("[[detector]]\nname = \"o\"\nbackend = { kind = \"oracle\" }\n")
-                .unwrap();
+        let oracle = DetectorList::from_toml(
+            "[[detector]]\nname = \"o\"\nbackend = { kind = \"oracle\" }\n",
+        )
+        .unwrap();
         assert_eq!(oracle.detectors[0].backend, DetectorBackend::Oracle);
         assert!(DetectorList::from_toml(
             "[[detector]]\nname = \"o\"\nbackend = { kind = \"oracle\", seed = 1 }\n"

@@ -25,14 +25,16 @@ pub mod records;
 pub mod report;
 
 pub use cli::{run_eval, EvalArgs};
-pub use detectors::{default_detectors, BuiltDetector, DetectorBackend, DetectorList, DetectorSpec};
+pub use detectors::{
+    default_detectors, BuiltDetector, DetectorBackend, DetectorList, DetectorSpec,
+};
 pub use execute::{
     execute_grasp, hand_collides, pregrasp_pose, Execution, ExecutionConfig, ExecutionReport,
     GraspCommand, GraspOutcome,
 };
 pub use protocol::{
-    run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, ProtocolConfig, RemainingObject,
-    SceneEnd, SceneRun, SceneSummary,
+    run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, ProtocolConfig,
+    RemainingObject, SceneEnd, SceneRun, SceneSummary,
 };
 
 use std::path::PathBuf;

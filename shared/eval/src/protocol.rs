@@ -19,8 +19,8 @@
 use crate::execute::{execute_grasp, ExecutionConfig, GraspCommand, GraspOutcome};
 use crate::EvalError;
 use psgrasp_datagen::{derive_seed, generate_labels, Difficulty, GenerationConfig};
-use psgrasp_geometry::{CameraModel, GraspConfiguration};
 use psgrasp_fusion::fuse_normal_grid;
+use psgrasp_geometry::{CameraModel, GraspConfiguration};
 use psgrasp_inference::InferenceBackend;
 use psgrasp_selection::{select, RejectionCounts, SelectionConfig};
 use psgrasp_sim::{

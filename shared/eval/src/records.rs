@@ -12,10 +12,10 @@
 //! ([`RecordsFile::open`]) a scene counts as done when its `scene` line parses; attempt lines of
 //! unfinished scenes and a torn last line (a killed run) are dropped, and those scenes run again
 //! (deterministically, so with the same outcome).
+use crate::detectors::DetectorBackend;
 use crate::protocol::{AttemptRecord, ProtocolConfig, SceneSummary};
 use crate::EvalError;
 use psgrasp_datagen::Difficulty;
-use crate::detectors::DetectorBackend;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
 use std::io::Write;
@@ -297,9 +297,9 @@ fn encode(r: &RecordLine, path: &Path) -> Result<Vec<u8>, EvalError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use psgrasp_inference::BackendConfig;
     use crate::execute::GraspOutcome;
     use crate::protocol::SceneEnd;
+    use psgrasp_inference::BackendConfig;
 
     fn key(scene: u64) -> SceneKey {
         SceneKey {
