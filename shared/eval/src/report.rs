@@ -58,7 +58,17 @@ pub struct CellMetrics {
     pub ends: BTreeMap<String, usize>,
     /// How the attempts ended.
     pub outcomes: BTreeMap<String, usize>,
+    /// Objects left in the bin when the scenes ended, by kind.
+    #[serde(default)]
+    pub left_by_kind: BTreeMap<String, usize>,
+    /// Of the objects left, those within [`NEAR_WALL_M`] of a side wall.
+    #[serde(default)]
+    pub left_near_wall: usize,
 }
+
+/// An object left this close to a side wall counts as "by a wall" in the report, metres (the
+/// Franka palm is 63 mm thick: closer than this, only approaches tilted away from the wall fit).
+pub const NEAR_WALL_M: f32 = 0.02;
 
 /// The whole summary.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -169,6 +179,8 @@ pub fn summarize(
                 execution_ms_per_attempt: 0.0,
                 ends: BTreeMap::new(),
                 outcomes: BTreeMap::new(),
+                left_by_kind: BTreeMap::new(),
+                left_near_wall: 0,
             };
             let (mut frames, mut det_ms, mut configs, mut exec_ms) = (0u64, 0.0, 0usize, 0.0);
             for line in lines {
@@ -183,6 +195,10 @@ pub fn summarize(
                         det_ms += s.detection_ms;
                         configs += s.configurations;
                         *c.ends.entry(snake(&s.end)).or_default() += 1;
+                        for o in &s.remaining_objects {
+                            *c.left_by_kind.entry(o.kind.clone()).or_default() += 1;
+                            c.left_near_wall += usize::from(o.wall_gap_m < NEAR_WALL_M);
+                        }
                         let e = sr.entry(key.seed).or_default();
                         e.0.push(f64::from(s.successes));
                         e.1.push(f64::from(s.attempts));
@@ -289,11 +305,7 @@ impl Summary {
                 .join(", ")
         };
         for c in &self.cells {
-            let label = self
-                .detectors
-                .iter()
-                .find(|(n, _)| n == &c.detector)
-                .map_or(c.detector.as_str(), |(_, l)| l.as_str());
+            let label = self.label(&c.detector);
             let _ = writeln!(
                 s,
                 "| {label} | {} | {} | {} | {} | {} | {} | {:.0} | {:.0} | {:.2} | {:.0} | {} | {} |",
@@ -311,7 +323,30 @@ impl Summary {
                 fmt_map(&c.outcomes),
             );
         }
+        let _ = writeln!(
+            s,
+            "\n## Objects left in the bin\n\n| Detector | Level | left | within {:.0} mm of a wall | by kind |\n|---|---|---|---|---|",
+            NEAR_WALL_M * 1e3
+        );
+        for c in &self.cells {
+            let left: usize = c.left_by_kind.values().sum();
+            let _ = writeln!(
+                s,
+                "| {} | {} | {left} | {} | {} |",
+                self.label(&c.detector),
+                level_name(c.level),
+                c.left_near_wall,
+                fmt_map(&c.left_by_kind),
+            );
+        }
         s
+    }
+
+    fn label<'a>(&'a self, detector: &'a str) -> &'a str {
+        self.detectors
+            .iter()
+            .find(|(n, _)| n == detector)
+            .map_or(detector, |(_, l)| l.as_str())
     }
 
     /// The bar chart: SR (top) and CR (bottom), one group per level, one bar per detector.
@@ -347,7 +382,7 @@ impl Summary {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::protocol::{SceneEnd, SceneSummary};
+    use crate::protocol::{RemainingObject, SceneEnd, SceneSummary};
 
     fn scene(seed: u64, index: u64, objects: usize, attempts: u32, successes: u32) -> RecordLine {
         RecordLine::Scene {
@@ -408,5 +443,42 @@ mod tests {
         let s = summarize(&[], &detectors, &[Difficulty::Medium], &[0], 10);
         assert!(s.cells[0].success_rate.mean.is_none());
         assert!(s.markdown(&[0]).contains("| A | – | – | 0 |"));
+    }
+
+    #[test]
+    fn objects_left_are_counted_by_kind_and_wall_distance() {
+        let left = |kind: &str, wall_gap_m: f32| RemainingObject {
+            name: format!("proc-{kind}"),
+            kind: kind.into(),
+            extent_m: [0.05; 3],
+            center_m: [0.0; 3],
+            wall_gap_m,
+        };
+        let mut a = scene(0, 0, 4, 2, 1);
+        let mut b = scene(0, 1, 3, 1, 1);
+        for (line, objects) in [
+            (
+                &mut a,
+                vec![left("sphere", 0.001), left("box", 0.1), left("box", -0.002)],
+            ),
+            (&mut b, vec![left("sphere", 0.05), left("sphere", 0.019)]),
+        ] {
+            if let RecordLine::Scene { summary, .. } = line {
+                summary.remaining = objects.len();
+                summary.remaining_objects = objects;
+            }
+        }
+        let detectors = [("a".to_string(), "A".to_string())];
+        let s = summarize(&[a, b], &detectors, &[Difficulty::Easy], &[0], 2);
+        let c = &s.cells[0];
+        assert_eq!(c.left_by_kind.get("sphere"), Some(&3));
+        assert_eq!(c.left_by_kind.get("box"), Some(&2));
+        // 1 mm, −2 mm (leaning on the wall) and 19 mm are by a wall; 50 and 100 mm are not.
+        assert_eq!(c.left_near_wall, 3);
+        let md = s.markdown(&[0]);
+        assert!(
+            md.contains("| A | Easy | 5 | 3 | box 2, sphere 3 |"),
+            "{md}"
+        );
     }
 }
