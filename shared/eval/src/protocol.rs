@@ -24,7 +24,7 @@ use psgrasp_geometry::{CameraModel, GraspConfiguration};
 use psgrasp_inference::InferenceBackend;
 use psgrasp_selection::{select, RejectionCounts, SelectionConfig};
 use psgrasp_sim::{
-    add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Scene,
+    add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Rendering, Scene,
 };
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -311,26 +311,28 @@ pub fn run_scene_with(
         }
         let k = attempts.len() as u64;
         let t = Instant::now();
-        let clean = scene.render_depth(&camera);
-        let depth = if level.noisy() {
+        // One ray cast per frame: the segmentation is what the oracle's labeler needs.
+        let rendering = scene.render(&camera);
+        let noisy = level.noisy().then(|| {
             let noise_seed = if k == 0 {
                 derive_seed(seed, 2)
             } else {
                 derive_seed(derive_seed(seed, 2), k)
             };
-            add_dex_noise(&clean, noise_seed, &gen.noise)
-        } else {
-            clean
-        };
+            add_dex_noise(&rendering.depth, noise_seed, &gen.noise)
+        });
+        let depth = noisy.as_ref().unwrap_or(&rendering.depth);
         let render_ms = ms(t);
         let t = Instant::now();
-        let grid = fuse_normal_grid(&depth, &camera, &gen.workspace, &gen.fusion)?;
+        let grid = fuse_normal_grid(depth, &camera, &gen.workspace, &gen.fusion)?;
         let fusion_ms = ms(t);
         let t = Instant::now();
         let detect_seed = derive_seed(derive_seed(seed, 4), k);
         let configs = match &mut detector {
             Detector::Backend(b) => b.infer(&grid.view(), detect_seed)?,
-            Detector::Oracle => oracle_configurations(&scene, &camera, cfg, detect_seed),
+            Detector::Oracle => {
+                oracle_configurations(&scene, &camera, &rendering, cfg, detect_seed)
+            }
         };
         let inference_ms = ms(t);
         let t = Instant::now();
@@ -407,16 +409,17 @@ pub fn run_scene_with(
     Ok(SceneRun { attempts, summary })
 }
 
-/// The ground-truth labels of `scene` as grasp configurations ([`Detector::Oracle`]).
+/// The ground-truth labels of `scene` (clean `rendering` from `camera`) as grasp configurations
+/// ([`Detector::Oracle`]).
 fn oracle_configurations(
     scene: &Scene,
     camera: &CameraModel,
+    rendering: &Rendering,
     cfg: &ProtocolConfig,
     seed: u64,
 ) -> Vec<GraspConfiguration> {
     let gen = &cfg.scenes;
-    let rendering = scene.render(camera);
-    generate_labels(scene, camera, &rendering, &gen.gripper, &gen.labels, seed)
+    generate_labels(scene, camera, rendering, &gen.gripper, &gen.labels, seed)
         .labels
         .iter()
         .map(|l| GraspConfiguration {
