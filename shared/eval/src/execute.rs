@@ -9,12 +9,16 @@
 //!    exact scene, bin included. A collision aborts the attempt ([`GraspOutcome::PregraspCollision`])
 //!    before any physics runs.
 //! 2. **Approach** from the pre-grasp to the grasp pose at [`ExecutionConfig::approach_speed_m_s`].
-//!    Any gripper contact closer than [`ExecutionConfig::touch_distance_m`] aborts the attempt
-//!    ([`GraspOutcome::ApproachContact`]): without this, a grasp on an object wider than the
-//!    opening can wedge the object between the fingers and "succeed".
+//!    Any gripper contact closer than [`ExecutionConfig::touch_distance_m`] stops the hand where
+//!    it is: without this, the kinematic palm pushes on and a grasp on an object wider than the
+//!    opening can wedge the object between the fingers and "succeed". By default the attempt then
+//!    fails ([`GraspOutcome::ApproachContact`]); with
+//!    [`ExecutionConfig::close_after_approach_contact`] the hand closes and lifts from where it
+//!    stopped, as VGN's and GIGA's clutter-removal simulations do (`allow_contact=True`).
 //! 3. **Close** with a velocity motor limited to [`ExecutionConfig::finger_force_n`] per finger
 //!    until the fingers stop.
-//! 4. **Lift** [`ExecutionConfig::lift_height_m`] straight up and **hold**.
+//! 4. **Lift** [`ExecutionConfig::lift_height_m`] straight up from where the approach ended and
+//!    **hold**.
 //! 5. **Judge.** An object counts as lifted when it rose more than
 //!    [`ExecutionConfig::lifted_fraction`] of the lift height. Success: exactly one lifted object,
 //!    touching a finger, and an opening above [`ExecutionConfig::min_opening_m`]. Two or more lifted
@@ -60,8 +64,11 @@ pub struct ExecutionConfig {
     pub pregrasp_margin_m: f32,
     /// Palm speed from the pre-grasp to the grasp pose, m/s.
     pub approach_speed_m_s: f32,
-    /// Abort the approach when the hand touches anything.
+    /// Stop the approach when the hand touches anything (off: the kinematic palm pushes through).
     pub abort_on_approach_contact: bool,
+    /// After a stopped approach, close and lift from where the hand stopped instead of failing
+    /// the attempt (VGN's and GIGA's `allow_contact=True`). Off by default: a touch fails.
+    pub close_after_approach_contact: bool,
     /// A contact point closer than this counts as touching, metres.
     pub touch_distance_m: f32,
     /// Closing speed of each finger, m/s.
@@ -106,6 +113,7 @@ impl Default for ExecutionConfig {
             pregrasp_margin_m: 0.0,
             approach_speed_m_s: 0.2,
             abort_on_approach_contact: true,
+            close_after_approach_contact: false,
             touch_distance_m: 0.0005,
             close_speed_m_s: 0.1,
             finger_force_n: 20.0,
@@ -283,6 +291,8 @@ pub struct ExecutionReport {
     pub steps: usize,
     /// Whether the remaining objects came to rest within the settling time.
     pub settled: bool,
+    /// Whether a touch stopped the approach short of the grasp pose.
+    pub approach_contact: bool,
 }
 
 /// The result of [`execute_grasp`]: the report and the scene the next attempt sees.
@@ -383,6 +393,7 @@ pub fn execute_grasp(
                 final_opening_m: opening,
                 steps: 0,
                 settled: true,
+                approach_contact: false,
             },
             scene_after: scene.description().clone(),
         });
@@ -412,6 +423,8 @@ pub fn execute_grasp(
     let distance = cfg.pregrasp_distance_m;
     let n_approach = ((distance / (cfg.approach_speed_m_s * cfg.dt_s)).ceil() as usize).max(1);
     let mut touched = false;
+    // Where the palm is when the approach ends (the grasp pose unless a touch stopped it).
+    let mut reached = command.workspace_from_gripper;
     for s in 1..=n_approach {
         let t = s as f32 / n_approach as f32;
         let pose = pregrasp_pose(command, distance * (1.0 - t));
@@ -420,6 +433,7 @@ pub fn execute_grasp(
         steps += 1;
         if cfg.abort_on_approach_contact && hand_touches(&world, &hand, cfg.touch_distance_m) {
             touched = true;
+            reached = pose;
             break;
         }
     }
@@ -427,7 +441,7 @@ pub fn execute_grasp(
     let mut outcome = GraspOutcome::ApproachContact;
     let mut lifted = Vec::new();
     let mut final_opening = opening;
-    if !touched {
+    if !touched || cfg.close_after_approach_contact {
         // Close.
         for j in hand.joints {
             if let Some(joint) = world.impulse_joints.get_mut(j, true) {
@@ -463,7 +477,7 @@ pub fn execute_grasp(
             .iter()
             .map(|h| world.bodies.get(*h).map_or(0.0, |b| b.translation().z))
             .collect();
-        let grasp_pose = command.workspace_from_gripper;
+        let grasp_pose = reached;
         let n_lift = ((cfg.lift_height_m / (cfg.lift_speed_m_s * cfg.dt_s)).ceil() as usize).max(1);
         for s in 1..=n_lift {
             let dz = cfg.lift_height_m * s as f32 / n_lift as f32;
@@ -523,6 +537,7 @@ pub fn execute_grasp(
             final_opening_m: final_opening,
             steps,
             settled,
+            approach_contact: touched,
         },
         scene_after,
     })

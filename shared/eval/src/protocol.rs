@@ -129,6 +129,10 @@ pub struct AttemptRecord {
     pub lost: usize,
     /// Finger opening at the end of the hold, metres.
     pub final_opening_m: f32,
+    /// Whether a touch stopped the approach short of the grasp pose (with
+    /// `close_after_approach_contact` the attempt went on from there).
+    #[serde(default)]
+    pub approach_contact: bool,
     /// Depth rendering, milliseconds (not part of detection).
     pub render_ms: f64,
     /// Fusion of the normal grid, milliseconds.
@@ -374,6 +378,7 @@ pub fn run_scene_with(
             lifted: r.lifted_objects.len(),
             lost: r.lost_objects.len(),
             final_opening_m: r.final_opening_m,
+            approach_contact: r.approach_contact,
             render_ms,
             fusion_ms,
             inference_ms,

@@ -324,6 +324,7 @@ mod tests {
             lifted: 1,
             lost: 0,
             final_opening_m: 0.029,
+            approach_contact: false,
             render_ms: 1.0,
             fusion_ms: 2.0,
             inference_ms: 3.0,

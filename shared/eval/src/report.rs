@@ -58,6 +58,9 @@ pub struct CellMetrics {
     pub ends: BTreeMap<String, usize>,
     /// How the attempts ended.
     pub outcomes: BTreeMap<String, usize>,
+    /// Attempts whose approach a touch stopped short of the grasp pose (whatever the outcome).
+    #[serde(default)]
+    pub approach_touches: usize,
     /// Objects left in the bin when the scenes ended, by kind.
     #[serde(default)]
     pub left_by_kind: BTreeMap<String, usize>,
@@ -179,6 +182,7 @@ pub fn summarize(
                 execution_ms_per_attempt: 0.0,
                 ends: BTreeMap::new(),
                 outcomes: BTreeMap::new(),
+                approach_touches: 0,
                 left_by_kind: BTreeMap::new(),
                 left_near_wall: 0,
             };
@@ -208,6 +212,7 @@ pub fn summarize(
                     }
                     RecordLine::Attempt { key, attempt } if mine(key) => {
                         *c.outcomes.entry(snake(&attempt.outcome)).or_default() += 1;
+                        c.approach_touches += usize::from(attempt.approach_contact);
                         exec_ms += attempt.execution_ms;
                     }
                     _ => {}
@@ -295,9 +300,12 @@ impl Summary {
         let _ = writeln!(s, "\n## Per level\n");
         let _ = writeln!(
             s,
-            "| Detector | Level | scenes | objects | attempts | successes | lost | detection ms/frame | configurations/frame | grasps/s detection | physics ms/attempt | scene ends | attempt outcomes |"
+            "| Detector | Level | scenes | objects | attempts | successes | lost | detection ms/frame | configurations/frame | grasps/s detection | physics ms/attempt | scene ends | attempt outcomes | approach stopped by a touch |"
         );
-        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+        let _ = writeln!(
+            s,
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+        );
         let fmt_map = |m: &BTreeMap<String, usize>| {
             m.iter()
                 .map(|(k, v)| format!("{k} {v}"))
@@ -308,7 +316,7 @@ impl Summary {
             let label = self.label(&c.detector);
             let _ = writeln!(
                 s,
-                "| {label} | {} | {} | {} | {} | {} | {} | {:.0} | {:.0} | {:.2} | {:.0} | {} | {} |",
+                "| {label} | {} | {} | {} | {} | {} | {} | {:.0} | {:.0} | {:.2} | {:.0} | {} | {} | {} |",
                 level_name(c.level),
                 c.scenes,
                 c.objects,
@@ -321,6 +329,7 @@ impl Summary {
                 c.execution_ms_per_attempt,
                 fmt_map(&c.ends),
                 fmt_map(&c.outcomes),
+                c.approach_touches,
             );
         }
         let _ = writeln!(
@@ -480,5 +489,33 @@ mod tests {
             md.contains("| A | Easy | 5 | 3 | box 2, sphere 3 |"),
             "{md}"
         );
+    }
+    #[test]
+    fn attempt_outcomes_and_approach_touches_are_counted() {
+        // Records as written on disk; the first has no `approach_contact` (older runs).
+        let attempt = |outcome: &str, touch: Option<bool>| {
+            let touch = touch.map_or(String::new(), |t| format!(r#","approach_contact":{t}"#));
+            serde_json::from_str::<RecordLine>(&format!(
+                r#"{{"type":"attempt","detector":"a","level":"easy","seed":0,"scene":0,"attempt":0,"objects_before":2,"configurations":5,"quality":0.9,"collision_score":1.0,"approach_index":3,"width_m":0.03,"opening_m":0.05,"outcome":"{outcome}","lifted":1,"lost":0,"final_opening_m":0.03{touch},"render_ms":1.0,"fusion_ms":1.0,"inference_ms":1.0,"selection_ms":1.0,"execution_ms":4.0}}"#
+            ))
+            .unwrap()
+        };
+        let lines = vec![
+            attempt("success", None),
+            attempt("success", Some(true)),
+            attempt("approach_contact", Some(true)),
+            attempt("nothing_held", Some(false)),
+            scene(0, 0, 2, 4, 2),
+        ];
+        let detectors = [("a".to_string(), "A".to_string())];
+        let s = summarize(&lines, &detectors, &[Difficulty::Easy], &[0], 1);
+        let c = &s.cells[0];
+        assert_eq!(c.outcomes.get("success"), Some(&2));
+        assert_eq!(c.outcomes.get("approach_contact"), Some(&1));
+        assert_eq!(c.approach_touches, 2);
+        assert!((c.execution_ms_per_attempt - 4.0).abs() < 1e-9);
+        assert!(s
+            .markdown(&[0])
+            .contains("| approach_contact 1, nothing_held 1, success 2 | 2 |"));
     }
 }

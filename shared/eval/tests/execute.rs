@@ -54,14 +54,26 @@ fn top_down(scene: &Scene, object: usize, opening_m: f32) -> GraspCommand {
 }
 
 fn run(scene: &Scene, cmd: &GraspCommand) -> psgrasp_eval::Execution {
+    run_with(scene, cmd, &ExecutionConfig::default())
+}
+
+fn run_with(scene: &Scene, cmd: &GraspCommand, cfg: &ExecutionConfig) -> psgrasp_eval::Execution {
     execute_grasp(
         scene,
         &MeshLibrary::default(),
         &GripperModel::default(),
         cmd,
-        &ExecutionConfig::default(),
+        cfg,
     )
     .unwrap()
+}
+
+/// VGN's and GIGA's execution: a touch stops the approach, then the hand closes there.
+fn close_after_touch() -> ExecutionConfig {
+    ExecutionConfig {
+        close_after_approach_contact: true,
+        ..ExecutionConfig::default()
+    }
 }
 
 #[test]
@@ -94,6 +106,44 @@ fn object_wider_than_the_opening_fails_on_approach() {
         -Vector3::z(),
     );
     assert_eq!(run(&scene, &across).report.outcome, GraspOutcome::Success);
+}
+
+#[test]
+fn closing_after_a_touch_lifts_from_where_the_hand_stopped_and_never_wedges() {
+    // A 50 mm high box; the grasp pose is 20 mm too low, so the fingertips (15 mm beyond the
+    // TCP) reach the floor 10 mm before the end of the approach.
+    let scene = boxes_on_floor(&[([0.02, 0.03, 0.025], [0.0, 0.0])]);
+    let mut low = top_down(&scene, 0, 0.06);
+    low.workspace_from_gripper.translation.vector.z -= 0.02;
+    let strict = run(&scene, &low);
+    assert_eq!(strict.report.outcome, GraspOutcome::ApproachContact);
+    assert!(strict.report.approach_contact);
+    let closed = run_with(&scene, &low, &close_after_touch());
+    assert!(closed.report.approach_contact);
+    assert_eq!(
+        closed.report.outcome,
+        GraspOutcome::Success,
+        "{:?}",
+        closed.report
+    );
+    assert!((closed.report.final_opening_m - 0.04).abs() < 0.004);
+    // An unobstructed grasp is not marked as touched.
+    let good = run_with(&scene, &top_down(&scene, 0, 0.06), &close_after_touch());
+    assert_eq!(good.report.outcome, GraspOutcome::Success);
+    assert!(!good.report.approach_contact);
+
+    // The 100 mm wide box across its width: the fingers stop on its top and close on nothing,
+    // so the touch does not wedge it into a "success".
+    let wide = boxes_on_floor(&[([0.05, 0.02, 0.025], [0.0, 0.0])]);
+    let ex = run_with(&wide, &top_down(&wide, 0, 0.08), &close_after_touch());
+    assert!(ex.report.approach_contact);
+    assert_eq!(
+        ex.report.outcome,
+        GraspOutcome::NothingHeld,
+        "{:?}",
+        ex.report
+    );
+    assert_eq!(ex.scene_after.objects.len(), 1);
 }
 
 #[test]
