@@ -377,3 +377,20 @@ fn run_jobs(
         None => Ok(()),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shipped_allow_contact_protocol_differs_from_the_default_only_in_execution() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../config/eval-protocol-allow-contact.toml");
+        let cfg = load_protocol(Some(&path)).unwrap();
+        assert!(cfg.execution.close_after_approach_contact);
+        let mut back = cfg.clone();
+        back.execution.close_after_approach_contact = false;
+        assert_eq!(back, ProtocolConfig::default());
+        assert!(load_protocol(Some(Path::new("/nonexistent/protocol.toml"))).is_err());
+    }
+}
