@@ -200,6 +200,7 @@ fn glyph(c: char) -> [&'static str; 7] {
     let c = match c {
         'κ' => 'K',
         '±' => '~',
+        '’' => '\'',
         c => c.to_ascii_uppercase(),
     };
     match c {
@@ -348,6 +349,9 @@ fn glyph(c: char) -> [&'static str; 7] {
         '=' => [
             "     ", "     ", "#####", "     ", "#####", "     ", "     ",
         ],
+        '\'' => [
+            "  #  ", "  #  ", " #   ", "     ", "     ", "     ", "     ",
+        ],
         _ => [
             " ### ", "#   #", "    #", "   # ", "  #  ", "     ", "  #  ",
         ],
@@ -360,12 +364,14 @@ mod tests {
 
     #[test]
     fn glyphs_are_five_by_seven() {
-        for c in (' '..='~').chain(['κ', '±']) {
+        for c in (' '..='~').chain(['κ', '±', '’']) {
             for row in glyph(c) {
                 assert_eq!(row.len(), 5, "{c:?}");
             }
         }
         assert_ne!(glyph('A'), glyph('?'));
+        assert_ne!(glyph('\''), glyph('?'));
+        assert_eq!(glyph('’'), glyph('\''));
         assert_eq!(glyph('a'), glyph('A'));
     }
 
