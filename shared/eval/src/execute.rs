@@ -477,13 +477,12 @@ pub fn execute_grasp(
             .iter()
             .map(|h| world.bodies.get(*h).map_or(0.0, |b| b.translation().z))
             .collect();
-        let grasp_pose = reached;
         let n_lift = ((cfg.lift_height_m / (cfg.lift_speed_m_s * cfg.dt_s)).ceil() as usize).max(1);
         for s in 1..=n_lift {
             let dz = cfg.lift_height_m * s as f32 / n_lift as f32;
             let pose = Isometry3::from_parts(
-                Translation3::from(grasp_pose.translation.vector + Vector3::z() * dz),
-                grasp_pose.rotation,
+                Translation3::from(reached.translation.vector + Vector3::z() * dz),
+                reached.rotation,
             );
             move_palm(&mut world, &hand, &pose);
             world.step();

@@ -490,6 +490,7 @@ mod tests {
             "{md}"
         );
     }
+
     #[test]
     fn attempt_outcomes_and_approach_touches_are_counted() {
         // Records as written on disk; the first has no `approach_contact` (older runs).
