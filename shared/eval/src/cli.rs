@@ -393,4 +393,17 @@ mod tests {
         assert_eq!(back, ProtocolConfig::default());
         assert!(load_protocol(Some(Path::new("/nonexistent/protocol.toml"))).is_err());
     }
+
+    #[test]
+    fn shipped_paper_protocol_adds_the_simulated_pregrasp_check_to_allow_contact() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+        let paper = load_protocol(Some(&dir.join("eval-protocol-paper.toml"))).unwrap();
+        let allow_contact =
+            load_protocol(Some(&dir.join("eval-protocol-allow-contact.toml"))).unwrap();
+        assert!(paper.skip_colliding_pregrasps);
+        assert!(!allow_contact.skip_colliding_pregrasps);
+        let mut back = paper.clone();
+        back.skip_colliding_pregrasps = false;
+        assert_eq!(back, allow_contact);
+    }
 }

@@ -10,19 +10,22 @@
 //! 2. **detection** (timed): fuse the normal grid → the detector's [`InferenceBackend::infer`] →
 //!    [`psgrasp_selection::select`] — configurations by antipodal quality, for each the first 8 of 18
 //!    approaches by collision score, the first with `q > 0.5`, `σ > 0.5`, a free grasp pose,
-//!    approach path and pre-grasp pose against the observed scene;
+//!    approach path and pre-grasp pose against the observed scene (and, with
+//!    [`ProtocolConfig::skip_colliding_pregrasps`], a pre-grasp pose free in the simulated scene);
 //! 3. execute the pick in physics ([`crate::execute_grasp`]); the scene afterwards is the next
 //!    round's scene.
 //!
 //! A scene ends when the bin is empty, no grasp is found, after
 //! [`ProtocolConfig::max_consecutive_failures`] failed attempts in a row, or at the attempt cap.
-use crate::execute::{execute_grasp, ExecutionConfig, GraspCommand, GraspOutcome};
+use crate::execute::{
+    execute_grasp, hand_collides, pregrasp_pose, ExecutionConfig, GraspCommand, GraspOutcome,
+};
 use crate::EvalError;
 use psgrasp_datagen::{derive_seed, generate_labels, Difficulty, GenerationConfig};
 use psgrasp_fusion::fuse_normal_grid;
 use psgrasp_geometry::{CameraModel, GraspConfiguration};
-use psgrasp_inference::InferenceBackend;
-use psgrasp_selection::{select, RejectionCounts, SelectionConfig};
+use psgrasp_inference::{InferenceBackend, OccupancyGrid};
+use psgrasp_selection::{select_filtered, RejectionCounts, SelectionConfig, SelectionError};
 use psgrasp_sim::{
     add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Rendering, Scene,
 };
@@ -40,6 +43,12 @@ pub struct ProtocolConfig {
     pub selection: SelectionConfig,
     /// Grasp execution in physics.
     pub execution: ExecutionConfig,
+    /// The paper's "executable" grasp: selection also tests each pick's open hand at the
+    /// pre-grasp pose against the simulated scene (the check [`execute_grasp`] starts with) and
+    /// skips a colliding one for the next approach or configuration, instead of executing it as
+    /// a failed attempt (`pregrasp_collision`). Off by default: a perception-only pipeline cannot
+    /// look into the true scene.
+    pub skip_colliding_pregrasps: bool,
     /// A scene ends after this many failed attempts in a row (the paper: 3).
     pub max_consecutive_failures: u32,
     /// A scene ends after this many attempts in any case.
@@ -55,6 +64,7 @@ impl Default for ProtocolConfig {
             scenes: GenerationConfig::default(),
             selection: SelectionConfig::default(),
             execution: ExecutionConfig::default(),
+            skip_colliding_pregrasps: false,
             max_consecutive_failures: 3,
             max_attempts_per_scene: 100,
             contact_region_inset_m: 0.005,
@@ -133,6 +143,10 @@ pub struct AttemptRecord {
     /// `close_after_approach_contact` the attempt went on from there).
     #[serde(default)]
     pub approach_contact: bool,
+    /// Approaches selection refused on this frame because their pre-grasp pose collides in the
+    /// simulated scene ([`ProtocolConfig::skip_colliding_pregrasps`]; 0 when off).
+    #[serde(default)]
+    pub pregrasps_skipped: usize,
     /// Depth rendering, milliseconds (not part of detection).
     pub render_ms: f64,
     /// Fusion of the normal grid, milliseconds.
@@ -340,12 +354,37 @@ pub fn run_scene_with(
         };
         let inference_ms = ms(t);
         let t = Instant::now();
-        let picks = select(
+        let occupancy = if cfg.selection.check_scene_collision {
+            let o = OccupancyGrid::from_normal_grid(&grid.view(), &cfg.selection.occupancy)
+                .map_err(SelectionError::from)?;
+            Some(o)
+        } else {
+            None
+        };
+        let mut skipped_in_simulation = 0usize;
+        let picks = select_filtered(
             &configs,
-            &grid.view(),
+            occupancy.as_ref(),
             scene.bin(),
             &gen.gripper,
             &cfg.selection,
+            |pick| {
+                if !cfg.skip_colliding_pregrasps {
+                    return true;
+                }
+                let command = GraspCommand::from(pick);
+                let pose = pregrasp_pose(&command, cfg.execution.pregrasp_distance_m);
+                let opening = command.opening_m.min(gen.gripper.max_opening_m);
+                let free = !hand_collides(
+                    &scene,
+                    &gen.gripper,
+                    &pose,
+                    opening,
+                    cfg.execution.pregrasp_margin_m,
+                );
+                skipped_in_simulation += usize::from(!free);
+                free
+            },
         )?;
         let selection_ms = ms(t);
         frames += 1;
@@ -379,6 +418,7 @@ pub fn run_scene_with(
             lost: r.lost_objects.len(),
             final_opening_m: r.final_opening_m,
             approach_contact: r.approach_contact,
+            pregrasps_skipped: skipped_in_simulation,
             render_ms,
             fusion_ms,
             inference_ms,

@@ -325,6 +325,7 @@ mod tests {
             lost: 0,
             final_opening_m: 0.029,
             approach_contact: false,
+            pregrasps_skipped: 0,
             render_ms: 1.0,
             fusion_ms: 2.0,
             inference_ms: 3.0,

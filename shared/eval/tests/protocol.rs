@@ -2,7 +2,8 @@
 //! oracle.
 use psgrasp_datagen::Difficulty;
 use psgrasp_eval::{
-    run_scene_with, Detector, DetectorBackend, DetectorSpec, ProtocolConfig, SceneEnd, SceneRun,
+    run_scene_with, Detector, DetectorBackend, DetectorSpec, GraspOutcome, ProtocolConfig,
+    SceneEnd, SceneRun,
 };
 use psgrasp_sim::{MeshLibrary, ObjectLibrary, Split};
 
@@ -165,4 +166,45 @@ fn objects_left_in_the_bin_are_described() {
         }
         assert!(o.wall_gap_m > -0.01 && o.wall_gap_m < 0.2, "{o:?}");
     }
+}
+
+#[test]
+fn pregrasps_colliding_in_simulation_are_skipped_not_failed() {
+    // A 25 mm margin on the simulated pre-grasp check makes the open hand "collide" whenever
+    // an object or a wall is near its pre-grasp pose. By default such a pick is executed and
+    // fails at once (`pregrasp_collision`); with the paper's "executable grasp" selection skips
+    // it for the next approach or configuration, and no attempt fails that way.
+    let mut strict = ProtocolConfig::default();
+    strict.execution.pregrasp_margin_m = 0.025;
+    strict.max_consecutive_failures = 100;
+    strict.max_attempts_per_scene = 4;
+    let mut paper = strict.clone();
+    paper.skip_colliding_pregrasps = true;
+    let pregrasp_failures = |r: &SceneRun| {
+        r.attempts
+            .iter()
+            .filter(|a| a.outcome == GraspOutcome::PregraspCollision)
+            .count()
+    };
+    let (mut failed, mut skipped) = (0, 0);
+    for index in 0..3 {
+        let a = run(Difficulty::Medium, 0, index, &strict);
+        let b = run(Difficulty::Medium, 0, index, &paper);
+        failed += pregrasp_failures(&a);
+        assert_eq!(pregrasp_failures(&b), 0, "{:?}", b.attempts);
+        // Executed picks passed the simulated check; the ones before them were skipped.
+        skipped += b
+            .attempts
+            .iter()
+            .map(|a| a.pregrasps_skipped)
+            .sum::<usize>();
+    }
+    assert!(
+        failed > 0,
+        "the margin should make some default picks collide"
+    );
+    assert!(
+        skipped > 0,
+        "the paper's selection should have skipped colliding picks"
+    );
 }

@@ -484,6 +484,22 @@ pub fn select_with_occupancy(
     gripper: &GripperModel,
     cfg: &SelectionConfig,
 ) -> Result<Selection, SelectionError> {
+    select_filtered(configs, occupancy, bin, gripper, cfg, |_| true)
+}
+
+/// [`select_with_occupancy`] with one more check after all of selection's own:
+/// `pregrasp_free(pick)` returning false rejects that approach as
+/// [`RejectionReason::PregraspCollision`] and the next approach of the configuration is tried.
+/// The evaluation uses it for the paper's "no collision at its pre-grasp pose", tested against
+/// the simulated scene.
+pub fn select_filtered(
+    configs: &[GraspConfiguration],
+    occupancy: Option<&OccupancyGrid>,
+    bin: &BinModel,
+    gripper: &GripperModel,
+    cfg: &SelectionConfig,
+    mut pregrasp_free: impl FnMut(&SelectedGrasp) -> bool,
+) -> Result<Selection, SelectionError> {
     let checker = GraspChecker::new(cfg, *gripper, *bin, occupancy)?;
     let mut order: Vec<usize> = (0..configs.len()).collect();
     // Quality descending; NaN qualities sort last (and are rejected as invalid); ties by index.
@@ -516,6 +532,9 @@ pub fn select_with_occupancy(
             .take(cfg.approaches_per_configuration)
         {
             match checker.check_approach(c, ci, ai) {
+                Ok(pick) if !pregrasp_free(&pick) => {
+                    rejected.add(RejectionReason::PregraspCollision)
+                }
                 Ok(pick) => {
                     picks.push(pick);
                     picked = true;

@@ -3,7 +3,9 @@ use nalgebra::{Point2, Point3, Vector3};
 use psgrasp_fusion::NormalGrid;
 use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel, Workspace, N_APPROACHES};
 use psgrasp_inference::synthetic::{Primitive, SyntheticScene};
-use psgrasp_selection::{select, GraspChecker, RejectionReason, SelectionConfig, SelectionError};
+use psgrasp_selection::{
+    select, select_filtered, GraspChecker, RejectionReason, SelectionConfig, SelectionError,
+};
 
 const TRUNC: f32 = 0.027;
 
@@ -150,6 +152,54 @@ fn picks_are_ordered_by_quality_then_collision_score() {
         assert!((p.workspace_from_gripper.translation.vector - tcp.coords).norm() < 1e-6);
         assert!((p.workspace_from_gripper.rotation * Vector3::x() - c.baseline).norm() < 1e-5);
     }
+}
+
+#[test]
+fn an_extra_pregrasp_check_moves_on_to_the_next_approach() {
+    // Two configurations, both free straight down (approaches 8 and 9, 8 scored higher). The
+    // caller's check (in the evaluation: the pre-grasp pose against the simulated scene) refuses
+    // approach 8 of the better configuration: its approach 9 is taken instead, the refusal is
+    // counted as a pre-grasp collision, and the other configuration keeps approach 8.
+    let mut best = config([0.25, 0.2, 0.06], 0.9, &DOWN, 0.8);
+    best.collision_scores[8] = 0.9;
+    let mut other = config([0.35, 0.2, 0.06], 0.7, &DOWN, 0.8);
+    other.collision_scores[8] = 0.9;
+    let configs = [best, other];
+    let cfg = SelectionConfig::default();
+    let mut asked = Vec::new();
+    let sel = select_filtered(
+        &configs,
+        None,
+        &bin(),
+        &GripperModel::default(),
+        &cfg,
+        |pick| {
+            asked.push((pick.configuration_index, pick.approach_index));
+            !(pick.configuration_index == 0 && pick.approach_index == 8)
+        },
+    )
+    .unwrap();
+    assert_eq!(asked, vec![(0, 8), (0, 9), (1, 8)]);
+    let got: Vec<(usize, usize)> = sel
+        .picks
+        .iter()
+        .map(|p| (p.configuration_index, p.approach_index))
+        .collect();
+    assert_eq!(got, vec![(0, 9), (1, 8)]);
+    assert_eq!(sel.rejected.pregrasp_collision, 1);
+    // Refusing everything leaves no pick, every examined approach counted.
+    let none = select_filtered(
+        &configs,
+        None,
+        &bin(),
+        &GripperModel::default(),
+        &cfg,
+        |_| false,
+    )
+    .unwrap();
+    assert!(none.picks.is_empty());
+    assert_eq!(none.rejected.pregrasp_collision, 4);
+    assert_eq!(none.rejected.no_valid_approach, 2);
 }
 
 #[test]
