@@ -275,7 +275,28 @@ pub fn run_grid_fusion(args: StageArgs) -> Result<()> {
                     sample.payload().to_vec(),
                 )
                 .map_err(FusionError::from)
-                .and_then(|depth| {
+                .and_then(|mut depth| {
+                    let (scale, applied) = psgrasp_fusion::correct_depth_scale(
+                        &mut depth,
+                        &camera,
+                        &cfg.bin,
+                        &cfg.depth_scale,
+                    )?;
+                    if cfg.depth_scale.enabled {
+                        match scale {
+                            Some(s) => tracing::debug!(
+                                "frame {}: depth scale {:.4} (support {:.2}, applied {applied})",
+                                h.frame_id,
+                                s.scale,
+                                s.support
+                            ),
+                            None => tracing::warn!(
+                                "frame {}: no depth scale found (too little of the bin visible); \
+                                 frame left as measured",
+                                h.frame_id
+                            ),
+                        }
+                    }
                     volume.reset();
                     volume.integrate(&depth, &camera)
                 });

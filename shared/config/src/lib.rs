@@ -5,7 +5,7 @@
 #![warn(missing_docs)]
 
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
-use psgrasp_fusion::FusionConfig;
+use psgrasp_fusion::{DepthScaleConfig, FusionConfig};
 use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, GripperModel, Workspace};
 use psgrasp_inference::BackendConfig;
 use psgrasp_ipc::ChannelConfig;
@@ -62,6 +62,8 @@ pub struct PipelineConfig {
     pub gripper: GripperModel,
     /// TSDF / normal-grid fusion.
     pub fusion: FusionConfig,
+    /// Per-frame depth-scale correction against the bin before fusion (off by default).
+    pub depth_scale: DepthScaleConfig,
     /// Inference backend.
     pub inference: BackendConfig,
     /// Grasp selection.
@@ -402,6 +404,9 @@ impl PipelineConfig {
         self.workspace
             .validate()
             .map_err(|e| bad("workspace", e.to_string()))?;
+        self.depth_scale
+            .validate()
+            .map_err(|e| bad("depth_scale", e.to_string()))?;
         let g = &self.gripper;
         let extra = [g.max_opening_m, g.tip_beyond_tcp_m];
         let mut dims = g

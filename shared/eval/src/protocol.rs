@@ -22,7 +22,7 @@ use crate::execute::{
 };
 use crate::EvalError;
 use psgrasp_datagen::{derive_seed, generate_labels, Difficulty, GenerationConfig};
-use psgrasp_fusion::fuse_normal_grid;
+use psgrasp_fusion::{correct_depth_scale, fuse_normal_grid, DepthScaleConfig};
 use psgrasp_geometry::{CameraModel, GraspConfiguration};
 use psgrasp_inference::{InferenceBackend, OccupancyGrid};
 use psgrasp_selection::{select_filtered, RejectionCounts, SelectionConfig, SelectionError};
@@ -49,6 +49,9 @@ pub struct ProtocolConfig {
     /// a failed attempt (`pregrasp_collision`). Off by default: a perception-only pipeline cannot
     /// look into the true scene.
     pub skip_colliding_pregrasps: bool,
+    /// Perception: the pipeline's per-frame depth-scale correction against the bin before fusion
+    /// (`[depth_scale]` of the pipeline config; off by default). Part of the timed fusion.
+    pub depth_scale: DepthScaleConfig,
     /// A scene ends after this many failed attempts in a row (the paper: 3).
     pub max_consecutive_failures: u32,
     /// A scene ends after this many attempts in any case.
@@ -65,6 +68,7 @@ impl Default for ProtocolConfig {
             selection: SelectionConfig::default(),
             execution: ExecutionConfig::default(),
             skip_colliding_pregrasps: false,
+            depth_scale: DepthScaleConfig::default(),
             max_consecutive_failures: 3,
             max_attempts_per_scene: 100,
             contact_region_inset_m: 0.005,
@@ -93,6 +97,12 @@ impl ProtocolConfig {
                 reason: "must be >= 0",
             });
         }
+        self.depth_scale
+            .validate()
+            .map_err(|_| EvalError::InvalidConfig {
+                field: "depth_scale",
+                reason: "see DepthScaleConfig::validate",
+            })?;
         self.selection.validate()?;
         self.execution.validate()
     }
@@ -147,6 +157,10 @@ pub struct AttemptRecord {
     /// simulated scene ([`ProtocolConfig::skip_colliding_pregrasps`]; 0 when off).
     #[serde(default)]
     pub pregrasps_skipped: usize,
+    /// The depth scale the correction found on this frame (`None`: correction off, or nothing
+    /// to go by); applied when it is off by at least `depth_scale.min_correction`.
+    #[serde(default)]
+    pub depth_scale: Option<f32>,
     /// Depth rendering, milliseconds (not part of detection).
     pub render_ms: f64,
     /// Fusion of the normal grid, milliseconds.
@@ -339,10 +353,11 @@ pub fn run_scene_with(
             };
             add_dex_noise(&rendering.depth, noise_seed, &gen.noise)
         });
-        let depth = noisy.as_ref().unwrap_or(&rendering.depth);
         let render_ms = ms(t);
         let t = Instant::now();
-        let grid = fuse_normal_grid(depth, &camera, &gen.workspace, &gen.fusion)?;
+        let mut depth = noisy.unwrap_or_else(|| rendering.depth.clone());
+        let (scale, _) = correct_depth_scale(&mut depth, &camera, scene.bin(), &cfg.depth_scale)?;
+        let grid = fuse_normal_grid(&depth, &camera, &gen.workspace, &gen.fusion)?;
         let fusion_ms = ms(t);
         let t = Instant::now();
         let detect_seed = derive_seed(derive_seed(seed, 4), k);
@@ -419,6 +434,7 @@ pub fn run_scene_with(
             final_opening_m: r.final_opening_m,
             approach_contact: r.approach_contact,
             pregrasps_skipped: skipped_in_simulation,
+            depth_scale: scale.map(|s| s.scale),
             render_ms,
             fusion_ms,
             inference_ms,

@@ -326,6 +326,7 @@ mod tests {
             final_opening_m: 0.029,
             approach_contact: false,
             pregrasps_skipped: 0,
+            depth_scale: None,
             render_ms: 1.0,
             fusion_ms: 2.0,
             inference_ms: 3.0,

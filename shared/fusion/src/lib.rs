@@ -20,12 +20,14 @@
 
 mod config;
 mod depth_png;
+mod depth_scale;
 mod normals;
 mod plane;
 mod tsdf;
 
 pub use config::FusionConfig;
 pub use depth_png::{load_depth_png, save_depth_png, DepthPngError};
+pub use depth_scale::{correct_depth_scale, estimate_depth_scale, DepthScale, DepthScaleConfig};
 pub use plane::{
     fit_support_plane, workspace_camera_from_plane, PlacementConfig, Plane, PlaneFitConfig,
 };
