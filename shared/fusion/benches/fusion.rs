@@ -2,15 +2,16 @@
 //!
 //! Renders an analytic bin scene (floor, sphere, box) top-down with the test ray caster, then
 //! times `TsdfVolume::integrate` (into a freshly reset volume), `write_normal_grid` (into
-//! preallocated buffers) and the whole frame (reset + integrate + extract). Prints a Markdown
+//! preallocated buffers), the whole frame (reset + integrate + extract) and the depth-scale
+//! estimate against a bin whose floor is the scene's (frame scaled by 1.02). Prints a Markdown
 //! table.
 #[path = "../tests/common/mod.rs"]
 mod common;
 
 use common::*;
 use nalgebra::Point3;
-use psgrasp_fusion::{FusionConfig, TsdfVolume};
-use psgrasp_geometry::{CameraIntrinsics, CameraModel};
+use psgrasp_fusion::{estimate_depth_scale, DepthScaleConfig, FusionConfig, TsdfVolume};
+use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel};
 use std::time::Instant;
 
 fn stats(mut v: Vec<f64>) -> (f64, f64, f64, f64) {
@@ -71,6 +72,24 @@ fn main() {
             std::hint::black_box(&normals);
             t_all.push(t0.elapsed().as_secs_f64() * 1e3);
         }
+        // The depth-scale estimate on the frame with a 2 % range error, the floor as the bin's.
+        let bin = BinModel {
+            floor_center: Point3::new(c.x, c.y, FLOOR_Z),
+            ..BinModel::default()
+        };
+        let mut scaled = depth.clone();
+        scaled.data.iter_mut().for_each(|d| *d *= 1.02);
+        let scale_cfg = DepthScaleConfig {
+            enabled: true,
+            ..DepthScaleConfig::default()
+        };
+        let mut t_scale = Vec::new();
+        for _ in 0..iterations {
+            let t0 = Instant::now();
+            let e = estimate_depth_scale(&scaled, &cam, &bin, &scale_cfg).unwrap();
+            t_scale.push(t0.elapsed().as_secs_f64() * 1e3);
+            assert!(e.is_some_and(|e| (e.scale - 1.02).abs() < 1e-3), "{e:?}");
+        }
         let dims = ws.dims;
         let grid = format!(
             "{}×{}×{} @ {} mm",
@@ -83,6 +102,7 @@ fn main() {
             ("integrate", t_int),
             ("normal extraction", t_ext),
             ("total (reset+integrate+extract)", t_all),
+            ("depth-scale estimate", t_scale),
         ] {
             let (mean, p50, p99, min) = stats(v);
             println!("| {name} | {grid} | {stage} | {mean:.3} | {p50:.3} | {p99:.3} | {min:.3} |");
