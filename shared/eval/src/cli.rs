@@ -405,5 +405,12 @@ mod tests {
         let mut back = paper.clone();
         back.skip_colliding_pregrasps = false;
         assert_eq!(back, allow_contact);
+        // The depth-scale variant adds the pipeline's correction in perception, nothing else.
+        let corrected =
+            load_protocol(Some(&dir.join("eval-protocol-paper-depth-scale.toml"))).unwrap();
+        assert!(corrected.depth_scale.enabled && !paper.depth_scale.enabled);
+        let mut back = corrected.clone();
+        back.depth_scale.enabled = false;
+        assert_eq!(back, paper);
     }
 }
