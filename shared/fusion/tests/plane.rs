@@ -232,4 +232,25 @@ fn real_realsense_frame() {
         total > 2000 && share5 > 0.7 && share10 > 0.85,
         "{share5}/{share10} of {total}"
     );
+
+    // The depth-scale correction on a real, calibrated frame: with the table as the floor of a
+    // shallow bin where the placement put it, the scale found is 1 and the frame is left alone.
+    let c = ws.extent() * 0.5;
+    let bin = psgrasp_geometry::BinModel {
+        inner_size_m: [0.5, 0.5, 0.05],
+        wall_thickness_m: 0.01,
+        floor_center: nalgebra::Point3::new(c.x, c.y, placement.plane_height_m),
+    };
+    let scale_cfg = psgrasp_fusion::DepthScaleConfig {
+        enabled: true,
+        ..Default::default()
+    };
+    let mut same = depth.clone();
+    let (found, applied) =
+        psgrasp_fusion::correct_depth_scale(&mut same, &cam, &bin, &scale_cfg).unwrap();
+    println!("depth scale on the real frame: {found:?}");
+    let found = found.expect("the table is in view");
+    assert!((found.scale - 1.0).abs() < 0.002, "{found:?}");
+    assert!(!applied);
+    assert_eq!(same.data, depth.data);
 }
