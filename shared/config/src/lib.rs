@@ -531,6 +531,14 @@ mod tests {
         assert!(e.to_string().contains("pipeline.name"), "{e}");
         let e = parse("[camera]\nsource = \"replay\"").unwrap_err();
         assert!(e.to_string().contains("camera.replay.path"), "{e}");
+        let e = parse("[depth_scale]\nenabled = true\nmax_deviation = 0.9").unwrap_err();
+        assert!(e.to_string().contains("depth_scale"), "{e}");
+        assert!(
+            parse("[depth_scale]\nenabled = true")
+                .unwrap()
+                .depth_scale
+                .enabled
+        );
         let e = PipelineConfig::load(Path::new("/nonexistent/psgrasp.toml")).unwrap_err();
         assert!(matches!(e, ConfigError::Read { .. }));
     }
