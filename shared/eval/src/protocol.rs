@@ -97,12 +97,7 @@ impl ProtocolConfig {
                 reason: "must be >= 0",
             });
         }
-        self.depth_scale
-            .validate()
-            .map_err(|_| EvalError::InvalidConfig {
-                field: "depth_scale",
-                reason: "see DepthScaleConfig::validate",
-            })?;
+        self.depth_scale.validate()?;
         self.selection.validate()?;
         self.execution.validate()
     }

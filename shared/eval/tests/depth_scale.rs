@@ -117,3 +117,11 @@ fn the_scale_found_in_cluttered_noisy_frames_is_the_noise_factor() {
         (None, false)
     );
 }
+
+#[test]
+fn a_bad_depth_scale_setting_is_refused_by_the_protocol() {
+    let mut proto = psgrasp_eval::ProtocolConfig::default();
+    proto.depth_scale.max_deviation = 0.9;
+    let e = proto.validate().unwrap_err().to_string();
+    assert!(e.contains("depth_scale.max_deviation"), "{e}");
+}
