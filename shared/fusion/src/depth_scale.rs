@@ -136,23 +136,7 @@ pub fn estimate_depth_scale(
 ) -> Result<Option<DepthScale>, FusionError> {
     cfg.validate()?;
     camera.validate()?;
-    let k = &camera.intrinsics;
-    if depth.width != k.width || depth.height != k.height {
-        return Err(FusionError::FrameSizeMismatch {
-            got_w: depth.width,
-            got_h: depth.height,
-            want_w: k.width,
-            want_h: k.height,
-        });
-    }
-    let expected_len = depth.width as usize * depth.height as usize;
-    if depth.data.len() != expected_len {
-        return Err(FusionError::BufferSize {
-            name: "depth",
-            got: depth.data.len(),
-            expected: expected_len,
-        });
-    }
+    crate::check_frame(depth, &camera.intrinsics)?;
     let (lo, hi) = (1.0 - cfg.max_deviation, 1.0 + cfg.max_deviation);
     let bins = ((hi - lo) / cfg.bin_width).ceil() as usize;
     let mut histogram = vec![0u32; bins];

@@ -35,6 +35,32 @@ pub use tsdf::{fuse_into, fuse_normal_grid, IntegrationStats, TsdfVolume};
 
 use psgrasp_geometry::Workspace;
 
+/// Checks that `depth` is a frame of `intrinsics` (valid intrinsics, same size, full buffer).
+pub(crate) fn check_frame(
+    depth: &psgrasp_geometry::DepthImage,
+    intrinsics: &psgrasp_geometry::CameraIntrinsics,
+) -> Result<(), FusionError> {
+    intrinsics.validate()?;
+    if depth.width != intrinsics.width || depth.height != intrinsics.height {
+        return Err(FusionError::FrameSizeMismatch {
+            got_w: depth.width,
+            got_h: depth.height,
+            want_w: intrinsics.width,
+            want_h: intrinsics.height,
+        });
+    }
+    if depth.data.len() != intrinsics.pixel_count() {
+        return Err(psgrasp_geometry::DepthError::SizeMismatch {
+            got: depth.data.len(),
+            expected: intrinsics.pixel_count(),
+            width: depth.width,
+            height: depth.height,
+        }
+        .into());
+    }
+    Ok(())
+}
+
 /// Errors from fusion.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum FusionError {

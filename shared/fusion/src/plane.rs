@@ -127,24 +127,7 @@ pub fn fit_support_plane(
     seed: u64,
 ) -> Result<Plane, FusionError> {
     config.validate()?;
-    intrinsics.validate()?;
-    if depth.width != intrinsics.width || depth.height != intrinsics.height {
-        return Err(FusionError::FrameSizeMismatch {
-            got_w: depth.width,
-            got_h: depth.height,
-            want_w: intrinsics.width,
-            want_h: intrinsics.height,
-        });
-    }
-    if depth.data.len() != intrinsics.pixel_count() {
-        return Err(psgrasp_geometry::DepthError::SizeMismatch {
-            got: depth.data.len(),
-            expected: intrinsics.pixel_count(),
-            width: depth.width,
-            height: depth.height,
-        }
-        .into());
-    }
+    crate::check_frame(depth, intrinsics)?;
     if depth.valid_count() == 0 {
         return Err(psgrasp_geometry::DepthError::NoValidPixels.into());
     }

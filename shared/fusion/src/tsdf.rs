@@ -143,24 +143,7 @@ impl TsdfVolume {
     ) -> Result<IntegrationStats, FusionError> {
         camera.validate()?;
         let k = camera.intrinsics;
-        if depth.width != k.width || depth.height != k.height {
-            return Err(FusionError::FrameSizeMismatch {
-                got_w: depth.width,
-                got_h: depth.height,
-                want_w: k.width,
-                want_h: k.height,
-            });
-        }
-        let expected = k.pixel_count();
-        if depth.data.len() != expected {
-            return Err(DepthError::SizeMismatch {
-                got: depth.data.len(),
-                expected,
-                width: depth.width,
-                height: depth.height,
-            }
-            .into());
-        }
+        crate::check_frame(depth, &k)?;
         let mut stats = self.count_pixels(depth, &k);
         if stats.valid_pixels == 0 {
             if stats.out_of_range_pixels == 0 {
