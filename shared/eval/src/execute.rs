@@ -370,6 +370,19 @@ fn validate_command(command: &GraspCommand, gripper: &GripperModel) -> Result<()
     Ok(())
 }
 
+/// True if the open hand of `command` at its pre-grasp pose overlaps the exact scene: the check
+/// [`execute_grasp`] starts with (`cfg.pregrasp_distance_m` back, `cfg.pregrasp_margin_m` grown).
+pub fn pregrasp_collides(
+    scene: &Scene,
+    gripper: &GripperModel,
+    command: &GraspCommand,
+    cfg: &ExecutionConfig,
+) -> bool {
+    let opening = command.opening_m.min(gripper.max_opening_m);
+    let pregrasp = pregrasp_pose(command, cfg.pregrasp_distance_m);
+    hand_collides(scene, gripper, &pregrasp, opening, cfg.pregrasp_margin_m)
+}
+
 /// Executes one grasp on `scene` (see the module docs). `meshes` must hold the meshes the scene's
 /// objects reference. Deterministic.
 pub fn execute_grasp(
@@ -382,8 +395,7 @@ pub fn execute_grasp(
     cfg.validate()?;
     validate_command(command, gripper)?;
     let opening = command.opening_m.min(gripper.max_opening_m);
-    let pregrasp = pregrasp_pose(command, cfg.pregrasp_distance_m);
-    if hand_collides(scene, gripper, &pregrasp, opening, cfg.pregrasp_margin_m) {
+    if pregrasp_collides(scene, gripper, command, cfg) {
         return Ok(Execution {
             report: ExecutionReport {
                 outcome: GraspOutcome::PregraspCollision,
@@ -398,6 +410,7 @@ pub fn execute_grasp(
             scene_after: scene.description().clone(),
         });
     }
+    let pregrasp = pregrasp_pose(command, cfg.pregrasp_distance_m);
 
     let desc = scene.description();
     let mut world = PhysicsWorld::new();

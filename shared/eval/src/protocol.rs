@@ -18,18 +18,19 @@
 //! A scene ends when the bin is empty, no grasp is found, after
 //! [`ProtocolConfig::max_consecutive_failures`] failed attempts in a row, or at the attempt cap.
 use crate::execute::{
-    execute_grasp, hand_collides, pregrasp_pose, ExecutionConfig, GraspCommand, GraspOutcome,
+    execute_grasp, pregrasp_collides, ExecutionConfig, GraspCommand, GraspOutcome,
 };
 use crate::EvalError;
 use psgrasp_datagen::{derive_seed, generate_labels, Difficulty, GenerationConfig};
 use psgrasp_fusion::{correct_depth_scale, fuse_normal_grid, DepthScaleConfig};
 use psgrasp_geometry::{CameraModel, GraspConfiguration};
-use psgrasp_inference::{InferenceBackend, OccupancyGrid};
-use psgrasp_selection::{select_filtered, RejectionCounts, SelectionConfig, SelectionError};
+use psgrasp_inference::InferenceBackend;
+use psgrasp_selection::{select_filtered, RejectionCounts, SelectionConfig};
 use psgrasp_sim::{
     add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Rendering, Scene,
 };
 use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 use std::time::Instant;
 
 /// Everything that shapes an evaluation apart from the detector, level, seed and scene index.
@@ -350,8 +351,13 @@ pub fn run_scene_with(
         });
         let render_ms = ms(t);
         let t = Instant::now();
-        let mut depth = noisy.unwrap_or_else(|| rendering.depth.clone());
-        let (scale, _) = correct_depth_scale(&mut depth, &camera, scene.bin(), &cfg.depth_scale)?;
+        // Owned only where it may change: noisy frames, or any frame the correction looks at.
+        let mut depth = noisy.map_or(Cow::Borrowed(&rendering.depth), Cow::Owned);
+        let scale = if cfg.depth_scale.enabled {
+            correct_depth_scale(depth.to_mut(), &camera, scene.bin(), &cfg.depth_scale)?.0
+        } else {
+            None
+        };
         let grid = fuse_normal_grid(&depth, &camera, &gen.workspace, &gen.fusion)?;
         let fusion_ms = ms(t);
         let t = Instant::now();
@@ -364,17 +370,10 @@ pub fn run_scene_with(
         };
         let inference_ms = ms(t);
         let t = Instant::now();
-        let occupancy = if cfg.selection.check_scene_collision {
-            let o = OccupancyGrid::from_normal_grid(&grid.view(), &cfg.selection.occupancy)
-                .map_err(SelectionError::from)?;
-            Some(o)
-        } else {
-            None
-        };
         let mut skipped_in_simulation = 0usize;
         let picks = select_filtered(
             &configs,
-            occupancy.as_ref(),
+            &grid.view(),
             scene.bin(),
             &gen.gripper,
             &cfg.selection,
@@ -382,15 +381,11 @@ pub fn run_scene_with(
                 if !cfg.skip_colliding_pregrasps {
                     return true;
                 }
-                let command = GraspCommand::from(pick);
-                let pose = pregrasp_pose(&command, cfg.execution.pregrasp_distance_m);
-                let opening = command.opening_m.min(gen.gripper.max_opening_m);
-                let free = !hand_collides(
+                let free = !pregrasp_collides(
                     &scene,
                     &gen.gripper,
-                    &pose,
-                    opening,
-                    cfg.execution.pregrasp_margin_m,
+                    &GraspCommand::from(pick),
+                    &cfg.execution,
                 );
                 skipped_in_simulation += usize::from(!free);
                 free

@@ -35,12 +35,12 @@ pub use tsdf::{fuse_into, fuse_normal_grid, IntegrationStats, TsdfVolume};
 
 use psgrasp_geometry::Workspace;
 
-/// Checks that `depth` is a frame of `intrinsics` (valid intrinsics, same size, full buffer).
+/// Checks that `depth` is a frame of `intrinsics` (same size, full buffer); the caller has
+/// validated the intrinsics (or the camera holding them).
 pub(crate) fn check_frame(
     depth: &psgrasp_geometry::DepthImage,
     intrinsics: &psgrasp_geometry::CameraIntrinsics,
 ) -> Result<(), FusionError> {
-    intrinsics.validate()?;
     if depth.width != intrinsics.width || depth.height != intrinsics.height {
         return Err(FusionError::FrameSizeMismatch {
             got_w: depth.width,

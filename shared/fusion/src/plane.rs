@@ -127,6 +127,7 @@ pub fn fit_support_plane(
     seed: u64,
 ) -> Result<Plane, FusionError> {
     config.validate()?;
+    intrinsics.validate()?;
     crate::check_frame(depth, intrinsics)?;
     if depth.valid_count() == 0 {
         return Err(psgrasp_geometry::DepthError::NoValidPixels.into());

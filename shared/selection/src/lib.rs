@@ -466,13 +466,35 @@ pub fn select(
     gripper: &GripperModel,
     cfg: &SelectionConfig,
 ) -> Result<Selection, SelectionError> {
+    select_filtered(configs, grid, bin, gripper, cfg, |_| true)
+}
+
+/// [`select`] with one more check after all of selection's own: `pregrasp_free(pick)` returning
+/// false rejects that approach as [`RejectionReason::PregraspCollision`] and the next approach of
+/// the configuration is tried. The evaluation uses it for the paper's "no collision at its
+/// pre-grasp pose", tested against the simulated scene.
+pub fn select_filtered(
+    configs: &[GraspConfiguration],
+    grid: &NormalGridView<'_>,
+    bin: &BinModel,
+    gripper: &GripperModel,
+    cfg: &SelectionConfig,
+    pregrasp_free: impl FnMut(&SelectedGrasp) -> bool,
+) -> Result<Selection, SelectionError> {
     cfg.validate()?;
     let occupancy = if cfg.check_scene_collision {
         Some(OccupancyGrid::from_normal_grid(grid, &cfg.occupancy)?)
     } else {
         None
     };
-    select_with_occupancy(configs, occupancy.as_ref(), bin, gripper, cfg)
+    select_from(
+        configs,
+        occupancy.as_ref(),
+        bin,
+        gripper,
+        cfg,
+        pregrasp_free,
+    )
 }
 
 /// [`select`] with a prebuilt occupancy grid (`None`: no scene check), e.g. shared with the
@@ -484,15 +506,11 @@ pub fn select_with_occupancy(
     gripper: &GripperModel,
     cfg: &SelectionConfig,
 ) -> Result<Selection, SelectionError> {
-    select_filtered(configs, occupancy, bin, gripper, cfg, |_| true)
+    select_from(configs, occupancy, bin, gripper, cfg, |_| true)
 }
 
-/// [`select_with_occupancy`] with one more check after all of selection's own:
-/// `pregrasp_free(pick)` returning false rejects that approach as
-/// [`RejectionReason::PregraspCollision`] and the next approach of the configuration is tried.
-/// The evaluation uses it for the paper's "no collision at its pre-grasp pose", tested against
-/// the simulated scene.
-pub fn select_filtered(
+/// The selection loop behind [`select_filtered`] and [`select_with_occupancy`].
+fn select_from(
     configs: &[GraspConfiguration],
     occupancy: Option<&OccupancyGrid>,
     bin: &BinModel,

@@ -165,11 +165,12 @@ fn an_extra_pregrasp_check_moves_on_to_the_next_approach() {
     let mut other = config([0.35, 0.2, 0.06], 0.7, &DOWN, 0.8);
     other.collision_scores[8] = 0.9;
     let configs = [best, other];
+    let grid = scene(&[]);
     let cfg = SelectionConfig::default();
     let mut asked = Vec::new();
     let sel = select_filtered(
         &configs,
-        None,
+        &grid.view(),
         &bin(),
         &GripperModel::default(),
         &cfg,
@@ -190,7 +191,7 @@ fn an_extra_pregrasp_check_moves_on_to_the_next_approach() {
     // Refusing everything leaves no pick, every examined approach counted.
     let none = select_filtered(
         &configs,
-        None,
+        &grid.view(),
         &bin(),
         &GripperModel::default(),
         &cfg,
