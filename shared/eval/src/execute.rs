@@ -293,6 +293,29 @@ pub struct ExecutionReport {
     pub settled: bool,
     /// Whether a touch stopped the approach short of the grasp pose.
     pub approach_contact: bool,
+    /// What that touch was (`None` when the approach reached the grasp pose).
+    pub approach_touch: Option<ApproachTouch>,
+}
+
+/// The part of the hand that touched something first on the approach.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HandPart {
+    /// The palm (hand body).
+    Palm,
+    /// One of the two fingers.
+    Finger,
+}
+
+/// The touch that stopped an approach: which hand part, what it touched, how far short.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ApproachTouch {
+    /// The hand part in contact.
+    pub part: HandPart,
+    /// Index (in the input scene) of the object touched; `None`: the bin.
+    pub object: Option<usize>,
+    /// Distance the palm was still short of the grasp pose, metres.
+    pub short_of_grasp_m: f32,
 }
 
 /// The result of [`execute_grasp`]: the report and the scene the next attempt sees.
@@ -406,6 +429,7 @@ pub fn execute_grasp(
                 steps: 0,
                 settled: true,
                 approach_contact: false,
+                approach_touch: None,
             },
             scene_after: scene.description().clone(),
         });
@@ -435,21 +459,29 @@ pub fn execute_grasp(
     // Approach.
     let distance = cfg.pregrasp_distance_m;
     let n_approach = ((distance / (cfg.approach_speed_m_s * cfg.dt_s)).ceil() as usize).max(1);
-    let mut touched = false;
+    let mut touch = None;
     // Where the palm is when the approach ends (the grasp pose unless a touch stopped it).
     let mut reached = command.workspace_from_gripper;
     for s in 1..=n_approach {
         let t = s as f32 / n_approach as f32;
-        let pose = pregrasp_pose(command, distance * (1.0 - t));
+        let short = distance * (1.0 - t);
+        let pose = pregrasp_pose(command, short);
         move_palm(&mut world, &hand, &pose);
         world.step();
         steps += 1;
-        if cfg.abort_on_approach_contact && hand_touches(&world, &hand, cfg.touch_distance_m) {
-            touched = true;
-            reached = pose;
-            break;
+        if cfg.abort_on_approach_contact {
+            if let Some((part, object)) = first_touch(&world, &hand, cfg.touch_distance_m) {
+                touch = Some(ApproachTouch {
+                    part,
+                    object,
+                    short_of_grasp_m: short,
+                });
+                reached = pose;
+                break;
+            }
         }
     }
+    let touched = touch.is_some();
 
     let mut outcome = GraspOutcome::ApproachContact;
     let mut lifted = Vec::new();
@@ -550,6 +582,7 @@ pub fn execute_grasp(
             steps,
             settled,
             approach_contact: touched,
+            approach_touch: touch,
         },
         scene_after,
     })
@@ -699,12 +732,31 @@ fn move_palm(world: &mut PhysicsWorld, hand: &Hand, pose: &Isometry3<f32>) {
 }
 
 /// True if any hand collider has a contact point closer than `touch`.
-fn hand_touches(world: &PhysicsWorld, hand: &Hand, touch: f32) -> bool {
-    hand.colliders.iter().any(|c| {
-        world.narrow_phase.contact_pairs_with(*c).any(|pair| {
-            pair.manifolds()
+/// The first hand collider (palm, then fingers) with a contact closer than `touch`, and what it
+/// touches (`Some(object index)`, `None` for the bin).
+fn first_touch(world: &PhysicsWorld, hand: &Hand, touch: f32) -> Option<(HandPart, Option<usize>)> {
+    hand.colliders.iter().enumerate().find_map(|(k, c)| {
+        world.narrow_phase.contact_pairs_with(*c).find_map(|pair| {
+            let close = pair
+                .manifolds()
                 .iter()
-                .any(|m| m.points.iter().any(|p| p.dist < touch))
+                .any(|m| m.points.iter().any(|p| p.dist < touch));
+            if !close {
+                return None;
+            }
+            let other = if pair.collider1 == *c {
+                pair.collider2
+            } else {
+                pair.collider1
+            };
+            let data = world.colliders.get(other).map_or(USER_BIN, |o| o.user_data);
+            let part = if k == 0 {
+                HandPart::Palm
+            } else {
+                HandPart::Finger
+            };
+            let object = (data != USER_BIN && data != USER_HAND).then(|| (data - 1) as usize);
+            Some((part, object))
         })
     })
 }

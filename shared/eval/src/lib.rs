@@ -29,12 +29,12 @@ pub use detectors::{
     default_detectors, BuiltDetector, DetectorBackend, DetectorList, DetectorSpec,
 };
 pub use execute::{
-    execute_grasp, hand_collides, pregrasp_pose, Execution, ExecutionConfig, ExecutionReport,
-    GraspCommand, GraspOutcome,
+    execute_grasp, hand_collides, pregrasp_pose, ApproachTouch, Execution, ExecutionConfig,
+    ExecutionReport, GraspCommand, GraspOutcome, HandPart,
 };
 pub use protocol::{
-    run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, ProtocolConfig,
-    RemainingObject, SceneEnd, SceneRun, SceneSummary,
+    run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, PickTarget, ProtocolConfig,
+    RemainingObject, SceneEnd, SceneRun, SceneSummary, TouchRecord, TouchedThing,
 };
 
 use std::path::PathBuf;

@@ -18,9 +18,11 @@
 //! A scene ends when the bin is empty, no grasp is found, after
 //! [`ProtocolConfig::max_consecutive_failures`] failed attempts in a row, or at the attempt cap.
 use crate::execute::{
-    execute_grasp, pregrasp_collides, ExecutionConfig, GraspCommand, GraspOutcome,
+    execute_grasp, pregrasp_collides, ApproachTouch, ExecutionConfig, GraspCommand, GraspOutcome,
+    HandPart,
 };
 use crate::EvalError;
+use nalgebra::Point3;
 use psgrasp_datagen::{derive_seed, generate_labels, Difficulty, GenerationConfig};
 use psgrasp_fusion::{correct_depth_scale, fuse_normal_grid, DepthScaleConfig};
 use psgrasp_geometry::{CameraModel, GraspConfiguration};
@@ -149,6 +151,12 @@ pub struct AttemptRecord {
     /// `close_after_approach_contact` the attempt went on from there).
     #[serde(default)]
     pub approach_contact: bool,
+    /// What stopped the approach (failure analysis; `None`: it reached the grasp pose).
+    #[serde(default)]
+    pub approach_touch: Option<TouchRecord>,
+    /// The object the pick aimed at (failure analysis).
+    #[serde(default)]
+    pub target: Option<PickTarget>,
     /// Approaches selection refused on this frame because their pre-grasp pose collides in the
     /// simulated scene ([`ProtocolConfig::skip_colliding_pregrasps`]; 0 when off).
     #[serde(default)]
@@ -167,6 +175,76 @@ pub struct AttemptRecord {
     pub selection_ms: f64,
     /// Physics of the attempt, milliseconds.
     pub execution_ms: f64,
+}
+
+/// What touched what when an approach stopped short of the grasp pose.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TouchRecord {
+    /// The hand part in contact.
+    pub part: HandPart,
+    /// What it touched.
+    pub touched: TouchedThing,
+    /// Distance the palm was still short of the grasp pose, metres.
+    pub short_of_grasp_m: f32,
+}
+
+/// What a stopped approach touched, relative to the pick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TouchedThing {
+    /// The object nearest to the pick's TCP (the one the grasp aims at).
+    Target,
+    /// Another object.
+    OtherObject,
+    /// The bin.
+    Bin,
+}
+
+/// The object a pick aims at: the one whose surface is nearest to its TCP (failure analysis).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PickTarget {
+    /// Its name in the object library.
+    pub name: String,
+    /// Its family (`box`, `sphere`, …).
+    pub kind: String,
+    /// Signed distance from the TCP to its surface, metres (negative: the TCP lies inside it,
+    /// as it does between the contacts of a well-placed grasp).
+    pub tcp_distance_m: f32,
+    /// Its index in the scene before the attempt (not recorded).
+    #[serde(skip)]
+    index: usize,
+}
+
+impl PickTarget {
+    /// The object of `scene` nearest to `tcp`; `None` for an empty scene.
+    pub fn nearest(scene: &Scene, tcp: &Point3<f32>) -> Option<Self> {
+        let (index, d) = (0..scene.object_count())
+            .filter_map(|i| scene.object_signed_distance(i, tcp).map(|d| (i, d)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))?;
+        let spec = &scene.objects()[index].spec;
+        Some(Self {
+            name: spec.name.clone(),
+            kind: format!("{:?}", spec.kind).to_lowercase(),
+            tcp_distance_m: d,
+            index,
+        })
+    }
+}
+
+impl TouchRecord {
+    /// Classifies `touch` against the pick's `target`.
+    fn new(touch: &ApproachTouch, target: Option<&PickTarget>) -> Self {
+        let touched = match touch.object {
+            None => TouchedThing::Bin,
+            Some(i) if target.is_some_and(|t| t.index == i) => TouchedThing::Target,
+            Some(_) => TouchedThing::OtherObject,
+        };
+        Self {
+            part: touch.part,
+            touched,
+            short_of_grasp_m: touch.short_of_grasp_m,
+        }
+    }
 }
 
 /// The totals of one scene (the closing line of a scene in the records file).
@@ -409,6 +487,8 @@ pub fn run_scene_with(
         )?;
         let execution_ms = ms(t);
         let r = &ex.report;
+        let tcp = Point3::from(pick.workspace_from_gripper.translation.vector);
+        let target = PickTarget::nearest(&scene, &tcp);
         attempts.push(AttemptRecord {
             attempt: k as u32,
             objects_before: scene.object_count(),
@@ -423,6 +503,11 @@ pub fn run_scene_with(
             lost: r.lost_objects.len(),
             final_opening_m: r.final_opening_m,
             approach_contact: r.approach_contact,
+            approach_touch: r
+                .approach_touch
+                .as_ref()
+                .map(|t| TouchRecord::new(t, target.as_ref())),
+            target,
             pregrasps_skipped: skipped_in_simulation,
             depth_scale: scale.map(|s| s.scale),
             render_ms,

@@ -325,6 +325,8 @@ mod tests {
             lost: 0,
             final_opening_m: 0.029,
             approach_contact: false,
+            approach_touch: None,
+            target: None,
             pregrasps_skipped: 0,
             depth_scale: None,
             render_ms: 1.0,

@@ -1,6 +1,6 @@
 //! Grasp execution on single analytic objects with known answers.
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use psgrasp_eval::{execute_grasp, ExecutionConfig, GraspCommand, GraspOutcome};
+use psgrasp_eval::{execute_grasp, ExecutionConfig, GraspCommand, GraspOutcome, HandPart};
 use psgrasp_geometry::{BinModel, GripperModel};
 use psgrasp_sim::{
     MeshLibrary, ObjectKind, ObjectSpec, Part, Primitive, Scene, SceneDescription, SceneObject,
@@ -118,6 +118,10 @@ fn closing_after_a_touch_lifts_from_where_the_hand_stopped_and_never_wedges() {
     let strict = run(&scene, &low);
     assert_eq!(strict.report.outcome, GraspOutcome::ApproachContact);
     assert!(strict.report.approach_contact);
+    // A fingertip touched the bin floor 10 mm before the grasp pose.
+    let touch = strict.report.approach_touch.expect("touch recorded");
+    assert_eq!((touch.part, touch.object), (HandPart::Finger, None));
+    assert!((touch.short_of_grasp_m - 0.01).abs() < 0.002, "{touch:?}");
     let closed = run_with(&scene, &low, &close_after_touch());
     assert!(closed.report.approach_contact);
     assert_eq!(
@@ -137,6 +141,12 @@ fn closing_after_a_touch_lifts_from_where_the_hand_stopped_and_never_wedges() {
     let wide = boxes_on_floor(&[([0.05, 0.02, 0.025], [0.0, 0.0])]);
     let ex = run_with(&wide, &top_down(&wide, 0, 0.08), &close_after_touch());
     assert!(ex.report.approach_contact);
+    // A fingertip (15 mm beyond the TCP) met the box's top (50 mm) with the TCP still 40 mm
+    // above the grasp pose (25 mm).
+    let touch = ex.report.approach_touch.expect("touch recorded");
+    assert_eq!((touch.part, touch.object), (HandPart::Finger, Some(0)));
+    assert!((touch.short_of_grasp_m - 0.04).abs() < 0.002, "{touch:?}");
+    assert!(good.report.approach_touch.is_none());
     assert_eq!(
         ex.report.outcome,
         GraspOutcome::NothingHeld,

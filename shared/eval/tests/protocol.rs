@@ -146,6 +146,18 @@ fn oracle_executes_ground_truth_grasps_and_reports_what_is_left() {
             "{o:?}"
         );
     }
+    // Every attempt names the object it aimed at; a ground-truth grasp's TCP (midway between
+    // two contacts on a box or ball) lies inside it. A touch is described exactly when the
+    // approach was stopped.
+    for r in &a.attempts {
+        let t = r.target.as_ref().expect("target");
+        assert!(test_names.contains(&t.name), "{t:?}");
+        assert!(t.kind == "box" || t.kind == "sphere", "{t:?}");
+        if r.outcome == GraspOutcome::Success {
+            assert!(t.tcp_distance_m < 0.0, "{t:?}");
+        }
+        assert_eq!(r.approach_touch.is_some(), r.approach_contact, "{r:?}");
+    }
     let b = run_with(&oracle(), Difficulty::Easy, 0, 0, &proto);
     assert_eq!(outcome_key(&a), outcome_key(&b));
 }
