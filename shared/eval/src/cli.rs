@@ -412,5 +412,12 @@ mod tests {
         let mut back = corrected.clone();
         back.depth_scale.enabled = false;
         assert_eq!(back, paper);
+        // The wide-opening variant widens the commanded opening, nothing else.
+        let wide = load_protocol(Some(&dir.join("eval-protocol-paper-wide-opening.toml"))).unwrap();
+        assert_eq!(wide.selection.opening_clearance_m, 0.04);
+        assert!(corrected.selection.opening_clearance_m < wide.selection.opening_clearance_m);
+        let mut back = wide.clone();
+        back.selection.opening_clearance_m = corrected.selection.opening_clearance_m;
+        assert_eq!(back, corrected);
     }
 }

@@ -8,6 +8,7 @@
 //! Detection time is fusion + inference + selection per frame; "grasps/s" are successful grasps
 //! per second of detection time.
 use crate::plot::{BarChart, Panel};
+use crate::protocol::{AttemptRecord, TouchedThing};
 use crate::records::{RecordLine, SceneKey};
 use psgrasp_datagen::Difficulty;
 use serde::{Deserialize, Serialize};
@@ -61,12 +62,37 @@ pub struct CellMetrics {
     /// Attempts whose approach a touch stopped short of the grasp pose (whatever the outcome).
     #[serde(default)]
     pub approach_touches: usize,
+    /// Failed attempts by cause ([`failure_cause`]).
+    #[serde(default)]
+    pub failure_causes: BTreeMap<String, usize>,
     /// Objects left in the bin when the scenes ended, by kind.
     #[serde(default)]
     pub left_by_kind: BTreeMap<String, usize>,
     /// Of the objects left, those within [`NEAR_WALL_M`] of a side wall.
     #[serde(default)]
     pub left_near_wall: usize,
+}
+
+/// A pick whose TCP lies farther than this outside the object it aimed at missed it, metres.
+pub const OFF_TARGET_M: f32 = 0.002;
+
+/// Why a failed attempt failed, for the report: what stopped its approach (`touched_target`,
+/// `touched_other_object`, `touched_bin`), or, when the hand reached the grasp pose, whether its
+/// TCP was off the object it aimed at (`reached_off_target`, more than [`OFF_TARGET_M`] outside)
+/// or on it (`reached_on_target`); `reached` for records without a target (older runs).
+pub fn failure_cause(a: &AttemptRecord) -> &'static str {
+    if let Some(t) = &a.approach_touch {
+        return match t.touched {
+            TouchedThing::Target => "touched_target",
+            TouchedThing::OtherObject => "touched_other_object",
+            TouchedThing::Bin => "touched_bin",
+        };
+    }
+    match &a.target {
+        Some(t) if t.tcp_distance_m > OFF_TARGET_M => "reached_off_target",
+        Some(_) => "reached_on_target",
+        None => "reached",
+    }
 }
 
 /// An object left this close to a side wall counts as "by a wall" in the report, metres (the
@@ -183,6 +209,7 @@ pub fn summarize(
                 ends: BTreeMap::new(),
                 outcomes: BTreeMap::new(),
                 approach_touches: 0,
+                failure_causes: BTreeMap::new(),
                 left_by_kind: BTreeMap::new(),
                 left_near_wall: 0,
             };
@@ -213,6 +240,11 @@ pub fn summarize(
                     RecordLine::Attempt { key, attempt } if mine(key) => {
                         *c.outcomes.entry(snake(&attempt.outcome)).or_default() += 1;
                         c.approach_touches += usize::from(attempt.approach_contact);
+                        if !attempt.outcome.is_success() {
+                            *c.failure_causes
+                                .entry(failure_cause(attempt).to_string())
+                                .or_default() += 1;
+                        }
                         exec_ms += attempt.execution_ms;
                     }
                     _ => {}
@@ -300,11 +332,11 @@ impl Summary {
         let _ = writeln!(s, "\n## Per level\n");
         let _ = writeln!(
             s,
-            "| Detector | Level | scenes | objects | attempts | successes | lost | detection ms/frame | configurations/frame | grasps/s detection | physics ms/attempt | scene ends | attempt outcomes | approach stopped by a touch |"
+            "| Detector | Level | scenes | objects | attempts | successes | lost | detection ms/frame | configurations/frame | grasps/s detection | physics ms/attempt | scene ends | attempt outcomes | approach stopped by a touch | failed attempts by cause |"
         );
         let _ = writeln!(
             s,
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
         );
         let fmt_map = |m: &BTreeMap<String, usize>| {
             m.iter()
@@ -316,7 +348,7 @@ impl Summary {
             let label = self.label(&c.detector);
             let _ = writeln!(
                 s,
-                "| {label} | {} | {} | {} | {} | {} | {} | {:.0} | {:.0} | {:.2} | {:.0} | {} | {} | {} |",
+                "| {label} | {} | {} | {} | {} | {} | {} | {:.0} | {:.0} | {:.2} | {:.0} | {} | {} | {} | {} |",
                 level_name(c.level),
                 c.scenes,
                 c.objects,
@@ -330,6 +362,7 @@ impl Summary {
                 fmt_map(&c.ends),
                 fmt_map(&c.outcomes),
                 c.approach_touches,
+                fmt_map(&c.failure_causes),
             );
         }
         let _ = writeln!(
@@ -518,5 +551,57 @@ mod tests {
         assert!(s
             .markdown(&[0])
             .contains("| approach_contact 1, nothing_held 1, success 2 | 2 |"));
+    }
+
+    #[test]
+    fn failed_attempts_are_counted_by_cause() {
+        // Records as written on disk, with the touch and target of newer runs (the last has
+        // neither: an older run).
+        let attempt = |outcome: &str, extra: &str| {
+            serde_json::from_str::<RecordLine>(&format!(
+                r#"{{"type":"attempt","detector":"a","level":"easy","seed":0,"scene":0,"attempt":0,"objects_before":2,"configurations":5,"quality":0.9,"collision_score":1.0,"approach_index":3,"width_m":0.03,"opening_m":0.05,"outcome":"{outcome}","lifted":0,"lost":0,"final_opening_m":0.0{extra},"render_ms":1.0,"fusion_ms":1.0,"inference_ms":1.0,"selection_ms":1.0,"execution_ms":4.0}}"#
+            ))
+            .unwrap()
+        };
+        let target = |d: f32| {
+            format!(r#","target":{{"name":"proc-001-box","kind":"box","tcp_distance_m":{d}}}"#)
+        };
+        let touch = |what: &str| {
+            format!(
+                r#","approach_contact":true,"approach_touch":{{"part":"finger","touched":"{what}","short_of_grasp_m":0.01}}{}"#,
+                target(-0.003)
+            )
+        };
+        let lines = vec![
+            attempt("success", &touch("other_object")),
+            attempt("nothing_held", &touch("target")),
+            attempt("nothing_held", &touch("bin")),
+            attempt("nothing_held", &target(0.005)),
+            attempt("double_grasp", &target(-0.004)),
+            attempt("nothing_held", ""),
+            scene(0, 0, 2, 6, 1),
+        ];
+        let detectors = [("a".to_string(), "A".to_string())];
+        let s = summarize(&lines, &detectors, &[Difficulty::Easy], &[0], 1);
+        let c = &s.cells[0];
+        let causes: Vec<(&str, usize)> = c
+            .failure_causes
+            .iter()
+            .map(|(k, v)| (k.as_str(), *v))
+            .collect();
+        assert_eq!(
+            causes,
+            [
+                ("reached", 1),
+                ("reached_off_target", 1),
+                ("reached_on_target", 1),
+                ("touched_bin", 1),
+                ("touched_target", 1)
+            ]
+        );
+        assert_eq!(c.approach_touches, 3);
+        assert!(s.markdown(&[0]).contains(
+            "| 3 | reached 1, reached_off_target 1, reached_on_target 1, touched_bin 1, touched_target 1 |"
+        ));
     }
 }
