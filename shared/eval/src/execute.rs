@@ -291,10 +291,15 @@ pub struct ExecutionReport {
     pub steps: usize,
     /// Whether the remaining objects came to rest within the settling time.
     pub settled: bool,
-    /// Whether a touch stopped the approach short of the grasp pose.
-    pub approach_contact: bool,
-    /// What that touch was (`None` when the approach reached the grasp pose).
+    /// The touch that stopped the approach short of the grasp pose (`None`: it reached it).
     pub approach_touch: Option<ApproachTouch>,
+}
+
+impl ExecutionReport {
+    /// Whether a touch stopped the approach short of the grasp pose.
+    pub fn approach_contact(&self) -> bool {
+        self.approach_touch.is_some()
+    }
 }
 
 /// The part of the hand that touched something first on the approach.
@@ -428,7 +433,6 @@ pub fn execute_grasp(
                 final_opening_m: opening,
                 steps: 0,
                 settled: true,
-                approach_contact: false,
                 approach_touch: None,
             },
             scene_after: scene.description().clone(),
@@ -481,12 +485,11 @@ pub fn execute_grasp(
             }
         }
     }
-    let touched = touch.is_some();
 
     let mut outcome = GraspOutcome::ApproachContact;
     let mut lifted = Vec::new();
     let mut final_opening = opening;
-    if !touched || cfg.close_after_approach_contact {
+    if touch.is_none() || cfg.close_after_approach_contact {
         // Close.
         for j in hand.joints {
             if let Some(joint) = world.impulse_joints.get_mut(j, true) {
@@ -581,7 +584,6 @@ pub fn execute_grasp(
             final_opening_m: final_opening,
             steps,
             settled,
-            approach_contact: touched,
             approach_touch: touch,
         },
         scene_after,
@@ -731,58 +733,53 @@ fn move_palm(world: &mut PhysicsWorld, hand: &Hand, pose: &Isometry3<f32>) {
     }
 }
 
-/// True if any hand collider has a contact point closer than `touch`.
-/// The first hand collider (palm, then fingers) with a contact closer than `touch`, and what it
-/// touches (`Some(object index)`, `None` for the bin).
-fn first_touch(world: &PhysicsWorld, hand: &Hand, touch: f32) -> Option<(HandPart, Option<usize>)> {
-    hand.colliders.iter().enumerate().find_map(|(k, c)| {
-        world.narrow_phase.contact_pairs_with(*c).find_map(|pair| {
+/// What hand collider `collider` touches closer than `touch`, one item per contact pair:
+/// `Some(object index)`, or `None` for the bin (hand parts only meet the world: `hand_groups`).
+fn touched_by(
+    world: &PhysicsWorld,
+    collider: ColliderHandle,
+    touch: f32,
+) -> impl Iterator<Item = Option<usize>> + '_ {
+    world
+        .narrow_phase
+        .contact_pairs_with(collider)
+        .filter_map(move |pair| {
             let close = pair
                 .manifolds()
                 .iter()
                 .any(|m| m.points.iter().any(|p| p.dist < touch));
-            if !close {
-                return None;
-            }
-            let other = if pair.collider1 == *c {
+            let other = if pair.collider1 == collider {
                 pair.collider2
             } else {
                 pair.collider1
             };
-            let data = world.colliders.get(other).map_or(USER_BIN, |o| o.user_data);
-            let part = if k == 0 {
-                HandPart::Palm
-            } else {
-                HandPart::Finger
-            };
-            let object = (data != USER_BIN && data != USER_HAND).then(|| (data - 1) as usize);
-            Some((part, object))
+            let data = world.colliders.get(other)?.user_data;
+            close.then(|| (data != USER_BIN && data != USER_HAND).then(|| (data - 1) as usize))
         })
+}
+
+/// The first hand collider (palm, then fingers) touching something closer than `touch`, and
+/// what it touches (`Some(object index)`, `None` for the bin).
+fn first_touch(world: &PhysicsWorld, hand: &Hand, touch: f32) -> Option<(HandPart, Option<usize>)> {
+    hand.colliders.iter().enumerate().find_map(|(k, c)| {
+        let part = if k == 0 {
+            HandPart::Palm
+        } else {
+            HandPart::Finger
+        };
+        touched_by(world, *c, touch)
+            .next()
+            .map(|object| (part, object))
     })
 }
 
 /// Object indices with a contact closer than `touch` to either finger.
 fn fingers_touch(world: &PhysicsWorld, hand: &Hand, touch: f32) -> Vec<usize> {
-    let mut out = Vec::new();
-    for c in &hand.colliders[1..] {
-        for pair in world.narrow_phase.contact_pairs_with(*c) {
-            let other = if pair.collider1 == *c {
-                pair.collider2
-            } else {
-                pair.collider1
-            };
-            let close = pair
-                .manifolds()
-                .iter()
-                .any(|m| m.points.iter().any(|p| p.dist < touch));
-            let Some(data) = world.colliders.get(other).map(|o| o.user_data) else {
-                continue;
-            };
-            if close && data != USER_BIN && data != USER_HAND {
-                out.push((data - 1) as usize);
-            }
-        }
-    }
+    let mut out: Vec<usize> = hand.colliders[1..]
+        .iter()
+        .flat_map(|c| touched_by(world, *c, touch))
+        .flatten()
+        .collect();
     out.sort_unstable();
     out.dedup();
     out

@@ -502,7 +502,7 @@ pub fn run_scene_with(
             lifted: r.lifted_objects.len(),
             lost: r.lost_objects.len(),
             final_opening_m: r.final_opening_m,
-            approach_contact: r.approach_contact,
+            approach_contact: r.approach_contact(),
             approach_touch: r
                 .approach_touch
                 .as_ref()

@@ -117,13 +117,13 @@ fn closing_after_a_touch_lifts_from_where_the_hand_stopped_and_never_wedges() {
     low.workspace_from_gripper.translation.vector.z -= 0.02;
     let strict = run(&scene, &low);
     assert_eq!(strict.report.outcome, GraspOutcome::ApproachContact);
-    assert!(strict.report.approach_contact);
+    assert!(strict.report.approach_contact());
     // A fingertip touched the bin floor 10 mm before the grasp pose.
     let touch = strict.report.approach_touch.expect("touch recorded");
     assert_eq!((touch.part, touch.object), (HandPart::Finger, None));
     assert!((touch.short_of_grasp_m - 0.01).abs() < 0.002, "{touch:?}");
     let closed = run_with(&scene, &low, &close_after_touch());
-    assert!(closed.report.approach_contact);
+    assert!(closed.report.approach_contact());
     assert_eq!(
         closed.report.outcome,
         GraspOutcome::Success,
@@ -134,13 +134,13 @@ fn closing_after_a_touch_lifts_from_where_the_hand_stopped_and_never_wedges() {
     // An unobstructed grasp is not marked as touched.
     let good = run_with(&scene, &top_down(&scene, 0, 0.06), &close_after_touch());
     assert_eq!(good.report.outcome, GraspOutcome::Success);
-    assert!(!good.report.approach_contact);
+    assert!(!good.report.approach_contact());
 
     // The 100 mm wide box across its width: the fingers stop on its top and close on nothing,
     // so the touch does not wedge it into a "success".
     let wide = boxes_on_floor(&[([0.05, 0.02, 0.025], [0.0, 0.0])]);
     let ex = run_with(&wide, &top_down(&wide, 0, 0.08), &close_after_touch());
-    assert!(ex.report.approach_contact);
+    assert!(ex.report.approach_contact());
     // A fingertip (15 mm beyond the TCP) met the box's top (50 mm) with the TCP still 40 mm
     // above the grasp pose (25 mm).
     let touch = ex.report.approach_touch.expect("touch recorded");
