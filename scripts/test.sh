@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The test command (README, CI): Rust workspace tests, the ONNX Runtime backend tests, and the
-# Python training tests (train → export → Rust inference end to end, for the two-stage model and
-# the VGN-style baseline).
+# Python training tests, and end to end the one-call training script of a lent GPU (datagen →
+# train → export → pack) run tiny on the CPU, its models checked by Rust inference against PyTorch.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV="$(scripts/setup-python.sh | tail -n 1)"
@@ -14,16 +14,16 @@ echo "== cargo test --workspace --features ort (ONNX Runtime: $ORT_DYLIB_PATH)"
 cargo test --workspace --features ort
 echo "== pytest training/tests"
 (cd training && OMP_NUM_THREADS=1 "$PSGRASP_PYTHON" -m pytest -q tests)
-echo "== end to end: psgrasp datagen → tiny training → ONNX export → Rust inference (tract + ort) against PyTorch"
+echo "== end to end: scripts/device-train.sh (psgrasp datagen → the two-stage model and the VGN-style baseline trained side by side (tiny) → ONNX export → packed runs) → Rust inference (tract + ort) against PyTorch"
 E2E="$(mktemp -d)"
 trap 'rm -rf "$E2E"' EXIT
-cargo run --quiet --features ort --bin psgrasp -- datagen --scenes 3 --quick --quiet --seed 11 --out "$E2E/data"
-(cd training && OMP_NUM_THREADS=1 "$PSGRASP_PYTHON" -m psgrasp_training train \
-    --config configs/tiny.toml --data "$E2E/data" --out "$E2E/run" > "$E2E/train.log" 2>&1) \
-    || { cat "$E2E/train.log"; exit 1; }
-PSGRASP_TEST_MODEL_DIR="$E2E/run/model" cargo test --workspace --features ort --test learned_model
-echo "== end to end: the VGN-style baseline (tiny training on the same scenes → export → Rust tract + ort against PyTorch)"
-(cd training && OMP_NUM_THREADS=1 "$PSGRASP_PYTHON" -m psgrasp_training train \
-    --config configs/vgn-tiny.toml --data "$E2E/data" --out "$E2E/vgn" > "$E2E/vgn.log" 2>&1) \
-    || { cat "$E2E/vgn.log"; exit 1; }
+cargo build --quiet --features ort --bin psgrasp
+scripts/device-train.sh --psgrasp "${CARGO_TARGET_DIR:-target}/debug/psgrasp" --scenes 3 --quick --seed 11 \
+    --minutes 5 --device cpu --threads 1 --work "$E2E/work" --out "$E2E/out" \
+    8app=training/configs/tiny.toml vgn=training/configs/vgn-tiny.toml > "$E2E/device.log" 2>&1 \
+    || { cat "$E2E/device.log"; exit 1; }
+mkdir -p "$E2E/8app" "$E2E/vgn"
+tar -xzf "$E2E/out/8app.tar.gz" -C "$E2E/8app"
+tar -xzf "$E2E/out/vgn.tar.gz" -C "$E2E/vgn"
+PSGRASP_TEST_MODEL_DIR="$E2E/8app/model" cargo test --workspace --features ort --test learned_model
 PSGRASP_TEST_VGN_DIR="$E2E/vgn/model" cargo test --workspace --features ort --test vgn_model

@@ -17,6 +17,8 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--out", required=True, type=Path, help="run directory (checkpoints, log.csv, model/)")
     t.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoints/latest.pt")
     t.add_argument("--max-minutes", type=float, default=None, help="wall-clock limit; stops cleanly, saves, exports")
+    t.add_argument("--fit-minutes", type=float, default=None,
+                   help="size train.iterations to this wall-clock budget once the step time is measured (fresh runs)")
     t.add_argument("--iterations", type=int, default=None, help="override train.iterations")
     t.add_argument("--threads", type=int, default=None, help="override train.threads")
     t.add_argument("--device", default=None, help="override train.device (cpu, cuda, auto)")
@@ -74,6 +76,8 @@ def main(argv: list[str] | None = None) -> int:
                 cfg.train.device = args.device
             if args.max_minutes is not None:
                 cfg.train.max_minutes = args.max_minutes
+            if args.fit_minutes is not None:
+                cfg.train.fit_minutes = args.fit_minutes
             cfg.validate()
             if cfg.variant == "vgn":
                 from .vgn import train_vgn as train

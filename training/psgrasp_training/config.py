@@ -157,6 +157,14 @@ class TrainConfig:
     deterministic: bool = True
     #: Validation scenes evaluated at most (0 = all held-out scenes).
     max_val_scenes: int = 0
+    #: Size the run to this wall-clock budget in minutes (0 = off; fresh runs only): once the
+    #: step time is measured, `iterations` becomes the smaller of itself and the steps that fit
+    #: the budget (less a reserve for the final validation and export), so the learning-rate
+    #: schedule ends with the budget. Also a hard stop where max_minutes is 0. For a lent GPU
+    #: whose speed is not known in advance; the fitted count is logged and stored in the card.
+    fit_minutes: float = 0.0
+    #: Steps timed before the first fit (the first few are skipped as warm-up).
+    fit_probe_steps: int = 50
 
 
 @dataclass
@@ -262,6 +270,8 @@ class Config:
             raise ConfigError("train.iterations and train.mlp_warmup_iterations must be ≥ 0")
         if not (t.lr > 0 and t.lr_end > 0):
             raise ConfigError("train.lr and train.lr_end must be > 0")
+        if not (t.max_minutes >= 0 and t.fit_minutes >= 0) or t.fit_probe_steps < 1:
+            raise ConfigError("train.max_minutes and train.fit_minutes must be ≥ 0, train.fit_probe_steps ≥ 1")
         if t.device not in ("cpu", "cuda", "auto"):
             raise ConfigError(f"train.device: {t.device!r} is not cpu, cuda or auto")
         for name in ("contact_probability", "quality", "collision"):

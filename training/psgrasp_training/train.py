@@ -84,6 +84,49 @@ def learning_rate(cfg: Config, step: int) -> float:
     return t.lr * (t.lr_end / t.lr) ** min(1.0, frac)
 
 
+#: Steps at the start of a budget-fitted run that are not timed (CUDA start-up, first allocations).
+FIT_WARMUP_STEPS = 3
+#: Share of the budget after which the fit is repeated with every step timed so far (a scene cache
+#: filling during the first epoch makes the first steps slower than the rest).
+FIT_REFIT_FRACTION = 0.2
+
+
+def fitted_iterations(step: int, elapsed_s: float, seconds_per_step: float, budget_s: float, cap: int) -> int:
+    """Iterations that end a run within `budget_s`: `step` plus the steps of `seconds_per_step`
+    that fit the time left after `elapsed_s`, less a reserve for the final validation and export
+    (5 % of the budget, at least 10 s); never more than `cap`, never fewer than `step + 1`."""
+    reserve = max(10.0, 0.05 * budget_s)
+    steps = int(max(0.0, budget_s - reserve - elapsed_s) / max(seconds_per_step, 1e-9))
+    return max(step + 1, min(cap, step + steps))
+
+
+class BudgetFit:
+    """`train.fit_minutes`: times the steps of a fresh run and sizes `train.iterations` to the
+    budget, once after `fit_probe_steps` steps and once more at FIT_REFIT_FRACTION of it."""
+
+    def __init__(self, minutes: float, probe_steps: int, start: int, cap: int):
+        self.budget_s = 60.0 * minutes
+        self.cap = cap
+        self.warm_step = start + FIT_WARMUP_STEPS
+        self.probe_step = self.warm_step + probe_steps
+        self.warm_elapsed: float | None = None
+        self.refitted = False
+
+    def after_step(self, step: int, elapsed_s: float) -> tuple[int, float] | None:
+        """(new iterations, measured s/step) when this step is a fitting point, else None."""
+        if step == self.warm_step:
+            self.warm_elapsed = elapsed_s
+            return None
+        if self.warm_elapsed is None or step < self.probe_step:
+            return None
+        if step > self.probe_step:
+            if self.refitted or elapsed_s < FIT_REFIT_FRACTION * self.budget_s:
+                return None
+            self.refitted = True
+        rate = (elapsed_s - self.warm_elapsed) / (step - self.warm_step)
+        return fitted_iterations(step, elapsed_s, rate, self.budget_s, self.cap), rate
+
+
 def scene_to(scene: Scene, device: torch.device) -> Scene:
     """Copy of a scene with its tensors on a device."""
     if device.type == "cpu":
@@ -265,6 +308,14 @@ def fit(cfg: Config, data: Path, run_dir: Path, make_net, step_fn, evaluate_fn, 
     write_json(run_dir / "dataset.json", ds.info.__dict__)
     logf, logw = _open_log(run_dir, start, log_fields)
     t_cfg = cfg.train
+    budget = None
+    if t_cfg.fit_minutes > 0:
+        if resume:
+            log(f"train.fit_minutes ignored on --resume: the run keeps iterations = {t_cfg.iterations}")
+        else:
+            budget = BudgetFit(t_cfg.fit_minutes, t_cfg.fit_probe_steps, start, t_cfg.iterations)
+            if t_cfg.max_minutes == 0:
+                t_cfg.max_minutes = t_cfg.fit_minutes
     log(f"training {describe}: {ds.info.train_scenes} train / {ds.info.val_scenes} val scenes, "
         f"{sum(p.numel() for p in net.parameters())} parameters, device {device}, threads {torch.get_num_threads()}, "
         f"steps {start}..{t_cfg.iterations}")
@@ -302,6 +353,12 @@ def fit(cfg: Config, data: Path, run_dir: Path, make_net, step_fn, evaluate_fn, 
             row.update(step=step, lr=f"{lr:.6g}", seconds=f"{secs:.3f}",
                        elapsed_s=f"{elapsed0 + time.monotonic() - t0:.1f}")
             logw.writerow(row)
+            fitted = budget.after_step(step, time.monotonic() - t0) if budget is not None else None
+            if fitted is not None and fitted[0] != t_cfg.iterations:
+                t_cfg.iterations = fitted[0]
+                write_json(run_dir / "config.json", cfg.to_dict())
+                log(f"fitted to {t_cfg.fit_minutes} min at step {step}: {fitted[1]:.3f} s/step, "
+                    f"iterations {t_cfg.iterations}")
             if step % t_cfg.log_every == 0 or step == t_cfg.iterations:
                 logf.flush()
                 log(f"step {step}/{t_cfg.iterations} {progress(out)} lr {lr:.2e} {secs:.2f} s/step")

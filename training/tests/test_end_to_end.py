@@ -124,3 +124,44 @@ def test_an_8app_run_exports_as_the_1app_ablation_from_any_checkpoint(trained_ru
 
     with pytest.raises(ExportError, match="cannot be exported as 1app-cosine"):
         export_run(run, tmp_path / "x", variant="1app-cosine", log=quiet)
+
+
+def test_fitted_iterations_fill_the_budget_less_the_reserve():
+    from psgrasp_training.train import fitted_iterations
+
+    # 100 s budget, reserve 10 s, 20 s gone, 1 s per step: 70 more steps.
+    assert fitted_iterations(10, 20.0, 1.0, 100.0, 10**6) == 80
+    assert fitted_iterations(10, 20.0, 1.0, 100.0, 50) == 50  # never above the configured count
+    assert fitted_iterations(10, 95.0, 1.0, 100.0, 10**6) == 11  # out of time: one more step
+    # Long budgets reserve 5 %: 600 s → 30 s.
+    assert fitted_iterations(0, 0.0, 0.5, 600.0, 10**6) == 1140
+
+
+def test_budget_fit_probes_then_refits_once():
+    from psgrasp_training.train import FIT_WARMUP_STEPS, BudgetFit
+
+    fit = BudgetFit(minutes=1.0, probe_steps=4, start=0, cap=10**6)
+    w = FIT_WARMUP_STEPS
+    assert fit.after_step(w, 3.0) is None  # warm-up ends: the clock starts here
+    assert all(fit.after_step(s, 3.0 + (s - w)) is None for s in range(w + 1, w + 4))
+    n, rate = fit.after_step(w + 4, 7.0)  # 4 steps in 4 s
+    assert rate == 1.0 and n == (w + 4) + int((60.0 - 10.0 - 7.0) / 1.0)
+    assert fit.after_step(w + 5, 8.0) is None  # before 20 % of the budget (12 s)
+    n, rate = fit.after_step(w + 10, 13.0)  # refit with all 10 timed steps
+    assert rate == 1.0 and n == w + 10 + 37
+    assert fit.after_step(w + 20, 30.0) is None  # only once
+
+
+def test_a_budget_fitted_run_ends_its_schedule_with_the_budget(box_dataset, tmp_path):
+    from conftest import tiny_config
+
+    run = tmp_path / "fit"
+    lines = []
+    cfg = tiny_config(iterations=10**6, checkpoint_every=0, fit_minutes=0.25, fit_probe_steps=3)
+    train(cfg, box_dataset, run, export=True, log=lines.append)
+    assert any(line.startswith("fitted to 0.25 min") for line in lines), lines
+    assert not any("wall-clock limit" in line for line in lines), lines
+    iterations = json.loads((run / "config.json").read_text())["train"]["iterations"]
+    assert 3 + 3 < iterations < 10**6  # past the warm-up and probe steps
+    assert load_checkpoint(run)["step"] == iterations  # ended by its schedule, not the hard stop
+    assert json.loads((run / "model" / "card.json").read_text())["training"]["iterations"] == iterations

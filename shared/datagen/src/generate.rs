@@ -65,7 +65,7 @@ impl Difficulty {
 
 /// Everything that shapes a generated scene apart from its seed and difficulty.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct GenerationConfig {
     /// Camera intrinsics (the camera is placed by `psgrasp_sim::default_camera`).
     pub intrinsics: CameraIntrinsics,

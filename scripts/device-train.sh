@@ -1,0 +1,134 @@
+#!/usr/bin/env bash
+# Train the models of docs/evaluation.md in one call on a lent GPU (training/README.md, "Training
+# on a lent GPU"): generate the training scenes on every core, train the runs side by side on the
+# one GPU, each sized to the same wall-clock budget (`train --fit-minutes`), export them, and pack
+# each run (model directory, per-step log, config, validation, console log) into OUT/NAME.tar.gz,
+# with OUT/summary.txt saying what ran and how it ended. OUT is $OUT where set (the device
+# machine's return folder), else out/device-run.
+#
+#   scripts/device-train.sh [--psgrasp BIN] [--scenes N] [--seed S] [--minutes M]
+#       [--datagen-config FILE] [--quick] [--device auto|cuda|cpu] [--threads T]
+#       [--work DIR] [--out DIR] [NAME=TRAINING_CONFIG ...]
+#
+# Defaults: target/release/psgrasp, 1000 scenes, seed 2026, 6 minutes, device auto, 4 CPU threads
+# per run, and the runs 8app=training/configs/gpu.toml,
+# wo-kappa=training/configs/gpu-ablation-1app-cosine.toml, vgn=training/configs/gpu-vgn.toml.
+# Python: $PSGRASP_PYTHON, else python3 (needs torch, numpy, safetensors, onnx, onnxruntime).
+set -euo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+PSGRASP="$ROOT/target/release/psgrasp"
+SCENES=1000
+SEED=2026
+MINUTES=6
+DATAGEN_CONFIG=""
+QUICK=()
+DEVICE=auto
+THREADS=4
+WORK="${TMPDIR:-/tmp}/psgrasp-device-run"
+OUT_DIR="${OUT:-$ROOT/out/device-run}"
+PY="${PSGRASP_PYTHON:-python3}"
+RUNS=()
+die() { echo "device-train: $*" >&2; exit 2; }
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --psgrasp) PSGRASP="$2"; shift 2 ;;
+        --scenes) SCENES="$2"; shift 2 ;;
+        --seed) SEED="$2"; shift 2 ;;
+        --minutes) MINUTES="$2"; shift 2 ;;
+        --datagen-config) DATAGEN_CONFIG="$(realpath "$2")"; shift 2 ;;
+        --quick) QUICK=(--quick); shift ;;
+        --device) DEVICE="$2"; shift 2 ;;
+        --threads) THREADS="$2"; shift 2 ;;
+        --work) WORK="$2"; shift 2 ;;
+        --out) OUT_DIR="$2"; shift 2 ;;
+        -h | --help) sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        *=*) RUNS+=("$1"); shift ;;
+        *) die "unknown argument '$1' (see --help)" ;;
+    esac
+done
+if [ ${#RUNS[@]} -eq 0 ]; then
+    RUNS=(8app=training/configs/gpu.toml wo-kappa=training/configs/gpu-ablation-1app-cosine.toml
+          vgn=training/configs/gpu-vgn.toml)
+fi
+[ -x "$PSGRASP" ] || die "no psgrasp binary at $PSGRASP (cargo build --release --bins, or --psgrasp BIN)"
+[ -z "$DATAGEN_CONFIG" ] || [ -f "$DATAGEN_CONFIG" ] || die "no datagen config $DATAGEN_CONFIG"
+NAMES=()
+CONFIGS=()
+for r in "${RUNS[@]}"; do
+    name="${r%%=*}"
+    cfg="${r#*=}"
+    [[ "$name" =~ ^[A-Za-z0-9_-]+$ ]] || die "run name '$name': letters, digits, '_' and '-' only"
+    [ -f "$cfg" ] || [ -f "$ROOT/$cfg" ] || die "run $name: no training config $cfg"
+    [ -f "$cfg" ] || cfg="$ROOT/$cfg"
+    NAMES+=("$name")
+    CONFIGS+=("$(realpath "$cfg")")
+done
+"$PY" -c "import torch, numpy, safetensors, onnx, onnxruntime" \
+    || die "$PY lacks torch, numpy, safetensors, onnx or onnxruntime"
+
+# The work folder is emptied first: refuse one that this script did not make.
+if [ -e "$WORK" ] && [ ! -e "$WORK/.psgrasp-device-run" ]; then
+    die "--work $WORK exists and is not a folder of an earlier run; name a new one"
+fi
+rm -rf "$WORK"
+mkdir -p "$WORK/runs" "$OUT_DIR"
+touch "$WORK/.psgrasp-device-run"
+SUMMARY="$OUT_DIR/summary.txt"
+say() { echo "$*" | tee -a "$SUMMARY"; }
+: > "$SUMMARY"
+say "psgrasp device training run, $(date -u +%Y-%m-%dT%H:%M:%SZ) on $(uname -n), $(nproc) cores"
+say "commit: $(git -C "$ROOT" rev-parse HEAD 2>/dev/null || echo unknown)"
+say "torch: $("$PY" -c 'import torch; print(torch.__version__, "| cuda:", torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none")')"
+say "budget per run: $MINUTES min; device $DEVICE; $THREADS CPU threads per run"
+
+# 1. The training scenes, on every core.
+t0=$SECONDS
+"$PSGRASP" datagen --scenes "$SCENES" --objects procedural --difficulty train --seed "$SEED" \
+    --out "$WORK/data" --quiet "${QUICK[@]}" ${DATAGEN_CONFIG:+--config "$DATAGEN_CONFIG"} \
+    > "$WORK/datagen.log" 2>&1 || { cat "$WORK/datagen.log" >&2; die "datagen failed"; }
+say "datagen: $SCENES scenes, seed $SEED${DATAGEN_CONFIG:+, config $DATAGEN_CONFIG}${QUICK[*]:+ (quick labels)}: $((SECONDS - t0)) s"
+[ -z "$DATAGEN_CONFIG" ] || cp "$DATAGEN_CONFIG" "$WORK/datagen-config.toml"
+
+# 2. The runs side by side, each sized to the same budget.
+export PYTHONPATH="$ROOT/training${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 OMP_NUM_THREADS="$THREADS"
+export CUBLAS_WORKSPACE_CONFIG="${CUBLAS_WORKSPACE_CONFIG:-:4096:8}"
+PIDS=()
+t0=$SECONDS
+for i in "${!NAMES[@]}"; do
+    "$PY" -m psgrasp_training train --config "${CONFIGS[$i]}" --data "$WORK/data" \
+        --out "$WORK/runs/${NAMES[$i]}" --fit-minutes "$MINUTES" --device "$DEVICE" --threads "$THREADS" \
+        > "$WORK/runs/${NAMES[$i]}.log" 2>&1 &
+    PIDS+=($!)
+done
+FAILED=0
+for i in "${!NAMES[@]}"; do
+    rc=0
+    wait "${PIDS[$i]}" || rc=$?
+    name="${NAMES[$i]}"
+    run="$WORK/runs/$name"
+    cp "$WORK/runs/$name.log" "$run/train.log" 2>/dev/null || true
+    cp "$WORK/datagen.log" "$run/datagen.log" 2>/dev/null || true
+    [ -z "$DATAGEN_CONFIG" ] || cp "$DATAGEN_CONFIG" "$run/datagen-config.toml"
+    cp "$WORK/data/manifest.json" "$run/dataset-manifest.json" 2>/dev/null || true
+    if [ "$rc" -ne 0 ] || [ ! -f "$run/model/card.json" ]; then
+        FAILED=1
+        say "run $name ($(basename "${CONFIGS[$i]}")): FAILED (exit $rc); last lines:"
+        tail -n 15 "$WORK/runs/$name.log" | tee -a "$SUMMARY"
+    else
+        iterations="$("$PY" -c 'import json, sys; print(json.load(open(sys.argv[1]))["training"]["iterations"])' \
+            "$run/model/card.json")"
+        fitted="$(grep -o 'fitted to .*' "$run/train.log" | tail -n 1 || true)"
+        say "run $name ($(basename "${CONFIGS[$i]}")): $iterations iterations${fitted:+ ($fitted)}"
+        say "  final $(grep -o 'validation @ .*' "$run/train.log" | tail -n 1)"
+    fi
+    # Pack what there is (a failed run's log and checkpoints-free files still tell why).
+    files=()
+    for f in model log.csv config.json dataset.json validation.json train.log datagen.log \
+             datagen-config.toml dataset-manifest.json; do
+        [ -e "$run/$f" ] && files+=("$f")
+    done
+    [ ${#files[@]} -eq 0 ] || tar -czf "$OUT_DIR/$name.tar.gz" -C "$run" "${files[@]}"
+done
+say "training: $((SECONDS - t0)) s for ${#NAMES[@]} runs side by side"
+ls -l "$OUT_DIR" | tee -a "$SUMMARY"
+exit "$FAILED"
