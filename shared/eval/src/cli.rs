@@ -421,15 +421,20 @@ mod tests {
         assert_eq!(back, corrected);
         // The Franka-fingertip variant changes the hand's tip depth, nothing else, and the
         // models trained for the 15 mm tip are refused under it (their card's approach depth).
-        let franka =
-            load_protocol(Some(&dir.join("eval-protocol-franka-fingertip.toml"))).unwrap();
+        let franka = load_protocol(Some(&dir.join("eval-protocol-franka-fingertip.toml"))).unwrap();
         assert_eq!(franka.scenes.gripper.tip_beyond_tcp_m, 0.0095);
         let mut back = franka.clone();
         back.scenes.gripper.tip_beyond_tcp_m = wide.scenes.gripper.tip_beyond_tcp_m;
         assert_eq!(back, wide);
         let shipped = crate::DetectorSpec::for_model_dir("default", dir.join("../models/default"));
         assert!(shipped.build(&wide).is_ok());
-        let refused = shipped.build(&franka).err().expect("a 15 mm model under the 9.5 mm hand");
-        assert!(format!("{refused:#}").contains("approach_depth"), "{refused:#}");
+        let refused = shipped
+            .build(&franka)
+            .err()
+            .expect("a 15 mm model under the 9.5 mm hand");
+        assert!(
+            format!("{refused:#}").contains("approach_depth"),
+            "{refused:#}"
+        );
     }
 }
