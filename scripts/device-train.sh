@@ -8,12 +8,15 @@
 #
 #   scripts/device-train.sh [--psgrasp BIN] [--scenes N] [--seed S] [--minutes M]
 #       [--datagen-config FILE] [--quick] [--device auto|cuda|cpu] [--threads T]
-#       [--work DIR] [--out DIR] [NAME=TRAINING_CONFIG ...]
+#       [--work DIR] [--out DIR] [--no-preflight] [NAME=TRAINING_CONFIG ...]
 #
 # Defaults: target/release/psgrasp, 1000 scenes, seed 2026, 6 minutes, device auto, 4 CPU threads
 # per run, and the runs 8app=training/configs/gpu.toml,
 # wo-kappa=training/configs/gpu-ablation-1app-cosine.toml, vgn=training/configs/gpu-vgn.toml.
 # Python: $PSGRASP_PYTHON, else python3 (needs torch, numpy, safetensors, onnx, onnxruntime).
+# Before the real data, a preflight trains the tiny configs (the two-stage model past its MLP
+# warm-up, and the VGN-style net) on 3 quick scenes on the same device, and a run that fails stops
+# the others: a broken call ends within a minute and leaves device time for a fixed rerun.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 PSGRASP="$ROOT/target/release/psgrasp"
@@ -28,6 +31,7 @@ WORK="${TMPDIR:-/tmp}/psgrasp-device-run"
 OUT_DIR="${OUT:-$ROOT/out/device-run}"
 PY="${PSGRASP_PYTHON:-python3}"
 RUNS=()
+PREFLIGHT=1
 die() { echo "device-train: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
     case "$1" in
@@ -37,11 +41,12 @@ while [ $# -gt 0 ]; do
         --minutes) MINUTES="$2"; shift 2 ;;
         --datagen-config) DATAGEN_CONFIG="$(realpath "$2")"; shift 2 ;;
         --quick) QUICK=(--quick); shift ;;
+        --no-preflight) PREFLIGHT=0; shift ;;
         --device) DEVICE="$2"; shift 2 ;;
         --threads) THREADS="$2"; shift 2 ;;
         --work) WORK="$2"; shift 2 ;;
         --out) OUT_DIR="$2"; shift 2 ;;
-        -h | --help) sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h | --help) sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *=*) RUNS+=("$1"); shift ;;
         *) die "unknown argument '$1' (see --help)" ;;
     esac
@@ -81,38 +86,83 @@ say "commit: $(git -C "$ROOT" rev-parse HEAD 2>/dev/null || echo unknown)"
 say "torch: $("$PY" -c 'import torch; print(torch.__version__, "| cuda:", torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none")')"
 say "budget per run: $MINUTES min; device $DEVICE; $THREADS CPU threads per run"
 
-# 1. The training scenes, on every core.
+export PYTHONPATH="$ROOT/training${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 OMP_NUM_THREADS="$THREADS"
+export CUBLAS_WORKSPACE_CONFIG="${CUBLAS_WORKSPACE_CONFIG:-:4096:8}"
+
+# train_side_by_side DATA DIR MINUTES NAME=CONFIG...: the runs side by side on one device, each
+# fitted to MINUTES (DIR/NAME, console log DIR/NAME.log); the first run that fails stops the others
+# (exit 143). Exit codes land in RCS, in argument order.
+train_side_by_side() {
+    local data="$1" dir="$2" minutes="$3" r pid rc p i
+    shift 3
+    local -a pids=() left=() keep=()
+    local -A by_pid=()
+    mkdir -p "$dir"
+    for r in "$@"; do
+        "$PY" -m psgrasp_training train --config "${r#*=}" --data "$data" --out "$dir/${r%%=*}" \
+            --fit-minutes "$minutes" --device "$DEVICE" --threads "$THREADS" > "$dir/${r%%=*}.log" 2>&1 &
+        pids+=($!)
+    done
+    left=("${pids[@]}")
+    while [ ${#left[@]} -gt 0 ]; do
+        rc=0
+        pid=""
+        wait -n -p pid "${left[@]}" || rc=$?
+        by_pid[$pid]=$rc
+        keep=()
+        for p in "${left[@]}"; do [ "$p" = "$pid" ] || keep+=("$p"); done
+        left=("${keep[@]}")
+        if [ "$rc" -ne 0 ] && [ ${#left[@]} -gt 0 ]; then kill "${left[@]}" 2>/dev/null || true; fi
+    done
+    RCS=()
+    for i in "${!pids[@]}"; do RCS[$i]=${by_pid[${pids[$i]}]}; done
+}
+
+# 1. Preflight: the tiny configs on this device, on 3 quick scenes.
+if [ "$PREFLIGHT" = 1 ]; then
+    t0=$SECONDS
+    "$PSGRASP" datagen --scenes 3 --quick --objects procedural --seed 11 --out "$WORK/preflight-data" \
+        --quiet > "$WORK/preflight-datagen.log" 2>&1 \
+        || { cat "$WORK/preflight-datagen.log" >&2; die "preflight datagen failed"; }
+    train_side_by_side "$WORK/preflight-data" "$WORK/preflight" 5 \
+        "8app=$ROOT/training/configs/tiny.toml" "vgn=$ROOT/training/configs/vgn-tiny.toml"
+    for i in 0 1; do
+        name=$([ "$i" = 0 ] && echo 8app || echo vgn)
+        if [ "${RCS[$i]}" -ne 0 ]; then
+            say "preflight $name: FAILED (exit ${RCS[$i]}); last lines:"
+            tail -n 25 "$WORK/preflight/$name.log" | tee -a "$SUMMARY"
+            cp "$WORK/preflight/$name.log" "$OUT_DIR/preflight-$name.log"
+            exit 1
+        fi
+    done
+    say "preflight: tiny 8app and vgn trained and exported on device $DEVICE in $((SECONDS - t0)) s"
+fi
+
+# 2. The training scenes, on every core.
 t0=$SECONDS
 "$PSGRASP" datagen --scenes "$SCENES" --objects procedural --difficulty train --seed "$SEED" \
     --out "$WORK/data" --quiet "${QUICK[@]}" ${DATAGEN_CONFIG:+--config "$DATAGEN_CONFIG"} \
     > "$WORK/datagen.log" 2>&1 || { cat "$WORK/datagen.log" >&2; die "datagen failed"; }
 say "datagen: $SCENES scenes, seed $SEED${DATAGEN_CONFIG:+, config $DATAGEN_CONFIG}${QUICK[*]:+ (quick labels)}: $((SECONDS - t0)) s"
-[ -z "$DATAGEN_CONFIG" ] || cp "$DATAGEN_CONFIG" "$WORK/datagen-config.toml"
 
-# 2. The runs side by side, each sized to the same budget.
-export PYTHONPATH="$ROOT/training${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 OMP_NUM_THREADS="$THREADS"
-export CUBLAS_WORKSPACE_CONFIG="${CUBLAS_WORKSPACE_CONFIG:-:4096:8}"
-PIDS=()
+# 3. The runs side by side, each sized to the same budget, then packed.
 t0=$SECONDS
-for i in "${!NAMES[@]}"; do
-    "$PY" -m psgrasp_training train --config "${CONFIGS[$i]}" --data "$WORK/data" \
-        --out "$WORK/runs/${NAMES[$i]}" --fit-minutes "$MINUTES" --device "$DEVICE" --threads "$THREADS" \
-        > "$WORK/runs/${NAMES[$i]}.log" 2>&1 &
-    PIDS+=($!)
-done
+ARGS=()
+for i in "${!NAMES[@]}"; do ARGS+=("${NAMES[$i]}=${CONFIGS[$i]}"); done
+train_side_by_side "$WORK/data" "$WORK/runs" "$MINUTES" "${ARGS[@]}"
 FAILED=0
 for i in "${!NAMES[@]}"; do
-    rc=0
-    wait "${PIDS[$i]}" || rc=$?
+    rc="${RCS[$i]}"
     name="${NAMES[$i]}"
     run="$WORK/runs/$name"
+    mkdir -p "$run"
     cp "$WORK/runs/$name.log" "$run/train.log" 2>/dev/null || true
     cp "$WORK/datagen.log" "$run/datagen.log" 2>/dev/null || true
     [ -z "$DATAGEN_CONFIG" ] || cp "$DATAGEN_CONFIG" "$run/datagen-config.toml"
     cp "$WORK/data/manifest.json" "$run/dataset-manifest.json" 2>/dev/null || true
     if [ "$rc" -ne 0 ] || [ ! -f "$run/model/card.json" ]; then
         FAILED=1
-        say "run $name ($(basename "${CONFIGS[$i]}")): FAILED (exit $rc); last lines:"
+        say "run $name ($(basename "${CONFIGS[$i]}")): FAILED (exit $rc$([ "$rc" = 143 ] && echo ', stopped after another run failed')); last lines:"
         tail -n 15 "$WORK/runs/$name.log" | tee -a "$SUMMARY"
     else
         iterations="$("$PY" -c 'import json, sys; print(json.load(open(sys.argv[1]))["training"]["iterations"])' \
@@ -121,7 +171,7 @@ for i in "${!NAMES[@]}"; do
         say "run $name ($(basename "${CONFIGS[$i]}")): $iterations iterations${fitted:+ ($fitted)}"
         say "  final $(grep -o 'validation @ .*' "$run/train.log" | tail -n 1)"
     fi
-    # Pack what there is (a failed run's log and checkpoints-free files still tell why).
+    # Pack what there is: a failed run's console log still says why.
     files=()
     for f in model log.csv config.json dataset.json validation.json train.log datagen.log \
              datagen-config.toml dataset-manifest.json; do

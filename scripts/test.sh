@@ -27,3 +27,12 @@ tar -xzf "$E2E/out/8app.tar.gz" -C "$E2E/8app"
 tar -xzf "$E2E/out/vgn.tar.gz" -C "$E2E/vgn"
 PSGRASP_TEST_MODEL_DIR="$E2E/8app/model" cargo test --workspace --features ort --test learned_model
 PSGRASP_TEST_VGN_DIR="$E2E/vgn/model" cargo test --workspace --features ort --test vgn_model
+# A run that fails stops the others, and the call says so (exit 1, summary).
+printf '[train]\nlr = -1.0\n' > "$E2E/broken.toml"
+rc=0
+scripts/device-train.sh --psgrasp "${CARGO_TARGET_DIR:-target}/debug/psgrasp" --scenes 3 --quick --seed 11 \
+    --minutes 5 --device cpu --threads 1 --no-preflight --work "$E2E/work-broken" --out "$E2E/out-broken" \
+    8app=training/configs/tiny.toml broken="$E2E/broken.toml" > "$E2E/broken.log" 2>&1 || rc=$?
+grep -q "run broken (broken.toml): FAILED (exit 2)" "$E2E/out-broken/summary.txt" \
+    && grep -q "run 8app (tiny.toml): FAILED (exit 143, stopped after another run failed)" "$E2E/out-broken/summary.txt" \
+    && [ "$rc" = 1 ] || { echo "device-train.sh did not stop on a failed run (exit $rc)"; cat "$E2E/broken.log"; exit 1; }
