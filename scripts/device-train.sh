@@ -8,7 +8,8 @@
 #
 #   scripts/device-train.sh [--psgrasp BIN] [--scenes N] [--seed S] [--minutes M]
 #       [--datagen-config FILE] [--quick] [--device auto|cuda|cpu] [--threads T]
-#       [--work DIR] [--out DIR] [--no-preflight] [NAME=TRAINING_CONFIG ...]
+#       [--work DIR] [--out DIR] [--no-preflight] [--with-reference]
+#       [NAME=TRAINING_CONFIG ...]
 #
 # Defaults: target/release/psgrasp, 1000 scenes, seed 2026, 6 minutes, device auto, 4 CPU threads
 # per run, and the runs 8app=training/configs/gpu.toml,
@@ -32,6 +33,7 @@ OUT_DIR="${OUT:-$ROOT/out/device-run}"
 PY="${PSGRASP_PYTHON:-python3}"
 RUNS=()
 PREFLIGHT=1
+EXCLUDE=(--exclude=model/reference.safetensors)
 die() { echo "device-train: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
     case "$1" in
@@ -42,6 +44,7 @@ while [ $# -gt 0 ]; do
         --datagen-config) DATAGEN_CONFIG="$(realpath "$2")"; shift 2 ;;
         --quick) QUICK=(--quick); shift ;;
         --no-preflight) PREFLIGHT=0; shift ;;
+        --with-reference) EXCLUDE=(); shift ;;
         --device) DEVICE="$2"; shift 2 ;;
         --threads) THREADS="$2"; shift 2 ;;
         --work) WORK="$2"; shift 2 ;;
@@ -177,7 +180,9 @@ for i in "${!NAMES[@]}"; do
              datagen-config.toml dataset-manifest.json; do
         [ -e "$run/$f" ] && files+=("$f")
     done
-    [ ${#files[@]} -eq 0 ] || tar -czf "$OUT_DIR/$name.tar.gz" -C "$run" "${files[@]}"
+    # The export's reference inputs and outputs (30 MB for base 16; returned files are limited to
+    # 16 MiB each) stay behind unless --with-reference.
+    [ ${#files[@]} -eq 0 ] || tar -czf "$OUT_DIR/$name.tar.gz" "${EXCLUDE[@]}" -C "$run" "${files[@]}"
 done
 say "training: $((SECONDS - t0)) s for ${#NAMES[@]} runs side by side"
 ls -l "$OUT_DIR" | tee -a "$SUMMARY"

@@ -19,7 +19,7 @@ E2E="$(mktemp -d)"
 trap 'rm -rf "$E2E"' EXIT
 cargo build --quiet --features ort --bin psgrasp
 scripts/device-train.sh --psgrasp "${CARGO_TARGET_DIR:-target}/debug/psgrasp" --scenes 3 --quick --seed 11 \
-    --minutes 5 --device cpu --threads 1 --work "$E2E/work" --out "$E2E/out" \
+    --minutes 5 --device cpu --threads 1 --with-reference --work "$E2E/work" --out "$E2E/out" \
     8app=training/configs/tiny.toml vgn=training/configs/vgn-tiny.toml > "$E2E/device.log" 2>&1 \
     || { cat "$E2E/device.log"; exit 1; }
 mkdir -p "$E2E/8app" "$E2E/vgn"
