@@ -127,10 +127,10 @@ if [ "$PREFLIGHT" = 1 ]; then
     "$PSGRASP" datagen --scenes 3 --quick --objects procedural --seed 11 --out "$WORK/preflight-data" \
         --quiet > "$WORK/preflight-datagen.log" 2>&1 \
         || { cat "$WORK/preflight-datagen.log" >&2; die "preflight datagen failed"; }
-    train_side_by_side "$WORK/preflight-data" "$WORK/preflight" 5 \
-        "8app=$ROOT/training/configs/tiny.toml" "vgn=$ROOT/training/configs/vgn-tiny.toml"
-    for i in 0 1; do
-        name=$([ "$i" = 0 ] && echo 8app || echo vgn)
+    PRE=("8app=$ROOT/training/configs/tiny.toml" "vgn=$ROOT/training/configs/vgn-tiny.toml")
+    train_side_by_side "$WORK/preflight-data" "$WORK/preflight" 5 "${PRE[@]}"
+    for i in "${!PRE[@]}"; do
+        name="${PRE[$i]%%=*}"
         if [ "${RCS[$i]}" -ne 0 ]; then
             say "preflight $name: FAILED (exit ${RCS[$i]}); last lines:"
             tail -n 25 "$WORK/preflight/$name.log" | tee -a "$SUMMARY"

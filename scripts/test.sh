@@ -18,8 +18,9 @@ echo "== end to end: scripts/device-train.sh (psgrasp datagen → the two-stage 
 E2E="$(mktemp -d)"
 trap 'rm -rf "$E2E"' EXIT
 cargo build --quiet --features ort --bin psgrasp
-scripts/device-train.sh --psgrasp "${CARGO_TARGET_DIR:-target}/debug/psgrasp" --scenes 3 --quick --seed 11 \
-    --minutes 5 --device cpu --threads 1 --with-reference --work "$E2E/work" --out "$E2E/out" \
+TINY_DEVICE_RUN=(--psgrasp "${CARGO_TARGET_DIR:-target}/debug/psgrasp" --scenes 3 --quick --seed 11 --minutes 5
+                 --device cpu --threads 1)
+scripts/device-train.sh "${TINY_DEVICE_RUN[@]}" --with-reference --work "$E2E/work" --out "$E2E/out" \
     8app=training/configs/tiny.toml vgn=training/configs/vgn-tiny.toml > "$E2E/device.log" 2>&1 \
     || { cat "$E2E/device.log"; exit 1; }
 mkdir -p "$E2E/8app" "$E2E/vgn"
@@ -30,8 +31,7 @@ PSGRASP_TEST_VGN_DIR="$E2E/vgn/model" cargo test --workspace --features ort --te
 # A run that fails stops the others, and the call says so (exit 1, summary).
 printf '[train]\nlr = -1.0\n' > "$E2E/broken.toml"
 rc=0
-scripts/device-train.sh --psgrasp "${CARGO_TARGET_DIR:-target}/debug/psgrasp" --scenes 3 --quick --seed 11 \
-    --minutes 5 --device cpu --threads 1 --no-preflight --work "$E2E/work-broken" --out "$E2E/out-broken" \
+scripts/device-train.sh "${TINY_DEVICE_RUN[@]}" --no-preflight --work "$E2E/work-broken" --out "$E2E/out-broken" \
     8app=training/configs/tiny.toml broken="$E2E/broken.toml" > "$E2E/broken.log" 2>&1 || rc=$?
 grep -q "run broken (broken.toml): FAILED (exit 2)" "$E2E/out-broken/summary.txt" \
     && grep -q "run 8app (tiny.toml): FAILED (exit 143, stopped after another run failed)" "$E2E/out-broken/summary.txt" \
