@@ -228,7 +228,7 @@ impl Drop for Supervisor {
 /// Fails early when `/dev/shm` cannot hold the pipeline's buffers (a full tmpfs makes publishers
 /// die with SIGBUS later).
 pub fn check_shm_space(cfg: &PipelineConfig) -> Result<()> {
-    let n = cfg.workspace.voxel_count() * 16;
+    let n = cfg.cell.workspace.voxel_count() * 16;
     let px = cfg.camera.intrinsics.pixel_count() * 4;
     let slots = cfg.pipeline.channel.subscriber_buffer * cfg.pipeline.channel.max_subscribers + 4;
     let need = (n + px) as u64 * slots as u64 * 2;

@@ -1,11 +1,24 @@
-//! The psgrasp processes: stage runtime, depth sources, launcher/supervisor, demo and stress
-//! tools. The stage binaries under `services/<stage>/main.rs` are thin wrappers around
-//! [`stages`]; the `psgrasp` CLI (`services/cli/main.rs`) drives everything else.
+//! The psgrasp processes. The folders read as the data flow: `camera-ingest` → `grid-fusion` →
+//! `inference` → `grasp-selection`, each a thin `main.rs` and a `stage.rs` that supplies only its
+//! step to the one stage driver ([`stage::run_stage`]); the next-pick server and client sit
+//! side by side in `next-pick`. The perception itself is `psgrasp-perception`'s chain, which the
+//! stages call one step per process. The launcher/supervisor, monitor, demo and stress tools are
+//! used by the `psgrasp` CLI (`services/cli/main.rs`).
 #![warn(missing_docs)]
 
-pub mod client;
+#[path = "camera-ingest/stage.rs"]
+pub mod camera_ingest;
+#[path = "grasp-selection/stage.rs"]
+pub mod grasp_selection;
+#[path = "grid-fusion/stage.rs"]
+pub mod grid_fusion;
+#[path = "inference/stage.rs"]
+pub mod inference;
 pub mod launcher;
-pub mod runtime;
+pub mod monitor;
+#[path = "next-pick/mod.rs"]
+pub mod next_pick;
+#[path = "camera-ingest/sources.rs"]
 pub mod sources;
-pub mod stages;
+pub mod stage;
 pub mod stress;

@@ -1,7 +1,7 @@
 //! Load tools: push frames through a live pipeline and report throughput, latency percentiles,
 //! drops and errors; and compare the shared-memory transport with a copying Unix socket.
-use crate::client::{FrameOutcome, PipelineMonitor};
 use crate::launcher::Supervisor;
+use crate::monitor::{FrameOutcome, PipelineMonitor};
 use anyhow::Result;
 use psgrasp_config::PipelineConfig;
 use psgrasp_ipc::{ChannelConfig, FrameHeader, PipelineNode, Stamp, StatusCode};

@@ -2,8 +2,8 @@
 //! Each test uses its own pipeline name, so tests run in parallel without interfering.
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
-use psgrasp::client::PipelineMonitor;
 use psgrasp::launcher::Supervisor;
+use psgrasp::monitor::PipelineMonitor;
 use psgrasp::sources::save_depth_npy;
 use psgrasp::stress::{run_frames, write_temp_config};
 use psgrasp_config::{PipelineConfig, PoseConfig, SourceKind};
@@ -37,7 +37,7 @@ fn shipped_config(tag: &str) -> PipelineConfig {
 /// model-independent inference.
 fn test_config(tag: &str) -> PipelineConfig {
     let mut cfg = shipped_config(tag);
-    cfg.inference = BackendConfig::Analytic(Default::default());
+    cfg.cell.inference = BackendConfig::Analytic(Default::default());
     cfg
 }
 
@@ -71,7 +71,7 @@ fn four_processes_turn_every_frame_into_picks() {
 fn shipped_model_runs_in_the_pipeline() {
     let mut cfg = shipped_config("model");
     assert_eq!(
-        cfg.inference.kind(),
+        cfg.cell.inference.kind(),
         "learned",
         "config/default.toml ships the model"
     );
@@ -122,7 +122,7 @@ fn every_frame_becomes_picks(cfg: &PipelineConfig) {
             );
         }
         for p in &o.picks {
-            assert!(p.quality >= cfg.selection.min_quality - 1e-6);
+            assert!(p.quality >= cfg.cell.selection.min_quality - 1e-6);
             // Picks approach from above and the pre-grasp lies behind the grasp along the approach.
             let a = p.approach();
             assert!(a.z < 0.0, "approach {a:?} points up");

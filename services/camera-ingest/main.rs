@@ -1,7 +1,7 @@
-//! The camera-ingest stage process: see `psgrasp::stages::run_camera_ingest`.
+//! The camera-ingest stage process: see `psgrasp::camera_ingest`.
 fn main() -> std::process::ExitCode {
-    psgrasp::runtime::stage_main(
+    psgrasp::stage::stage_main(
         psgrasp_ipc::Stage::CameraIngest,
-        psgrasp::stages::run_camera_ingest,
+        psgrasp::camera_ingest::run,
     )
 }

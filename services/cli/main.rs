@@ -4,7 +4,7 @@ use clap::{Parser, Subcommand};
 use psgrasp::launcher::{default_bin_dir, Supervisor};
 use psgrasp::stress;
 use psgrasp_config::PipelineConfig;
-use psgrasp_ipc::{PipelineNode, StatusCode};
+use psgrasp_ipc::{NextPickStatus, PipelineNode, StatusCode};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -85,7 +85,7 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
-    psgrasp::runtime::init_logging();
+    psgrasp::stage::init_logging();
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
@@ -160,20 +160,28 @@ fn run(cli: Cli) -> Result<()> {
                 &cfg.pipeline.name,
                 cfg.pipeline.channel,
             )?;
-            let client = psgrasp::client::PickClient::connect(&node)?;
+            let client = psgrasp::next_pick::PickClient::connect(&node)?;
             match client.next_pick(failed, Duration::from_secs(2))? {
                 None => anyhow::bail!(
                     "no answer from grasp-selection within 2 s: is `psgrasp up` running?"
                 ),
-                Some(r) if r.status == 1 => println!("no frame processed yet"),
-                Some(r) if r.status == 2 => println!(
-                    "all picks of frame {} used; wait for the next frame",
-                    r.frame_id
-                ),
-                Some(r) => println!(
-                    "{}",
-                    serde_json::to_string_pretty(&pick_json(r.frame_id, &r.pick))?
-                ),
+                Some(r) => match r.status() {
+                    Some(NextPickStatus::Pick) => println!(
+                        "{}",
+                        serde_json::to_string_pretty(&pick_json(r.frame_id, &r.pick))?
+                    ),
+                    Some(NextPickStatus::NoFrameYet) => println!("no frame processed yet"),
+                    Some(NextPickStatus::Exhausted) => println!(
+                        "all picks of frame {} used; wait for the next frame",
+                        r.frame_id
+                    ),
+                    Some(NextPickStatus::BadRequest) => {
+                        anyhow::bail!("grasp-selection refused the request as malformed")
+                    }
+                    None => {
+                        anyhow::bail!("unknown next-pick status {} from grasp-selection", r.status)
+                    }
+                },
             }
             Ok(())
         }

@@ -1,7 +1,7 @@
-//! The grasp-selection stage process: see `psgrasp::stages::run_grasp_selection`.
+//! The grasp-selection stage process: see `psgrasp::grasp_selection`.
 fn main() -> std::process::ExitCode {
-    psgrasp::runtime::stage_main(
+    psgrasp::stage::stage_main(
         psgrasp_ipc::Stage::GraspSelection,
-        psgrasp::stages::run_grasp_selection,
+        psgrasp::grasp_selection::run,
     )
 }

@@ -1,7 +1,4 @@
-//! The grid-fusion stage process: see `psgrasp::stages::run_grid_fusion`.
+//! The grid-fusion stage process: see `psgrasp::grid_fusion`.
 fn main() -> std::process::ExitCode {
-    psgrasp::runtime::stage_main(
-        psgrasp_ipc::Stage::GridFusion,
-        psgrasp::stages::run_grid_fusion,
-    )
+    psgrasp::stage::stage_main(psgrasp_ipc::Stage::GridFusion, psgrasp::grid_fusion::run)
 }

@@ -1,7 +1,4 @@
-//! The inference stage process: see `psgrasp::stages::run_inference`.
+//! The inference stage process: see `psgrasp::inference`.
 fn main() -> std::process::ExitCode {
-    psgrasp::runtime::stage_main(
-        psgrasp_ipc::Stage::Inference,
-        psgrasp::stages::run_inference,
-    )
+    psgrasp::stage::stage_main(psgrasp_ipc::Stage::Inference, psgrasp::inference::run)
 }

@@ -5,11 +5,10 @@
 #![warn(missing_docs)]
 
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
-use psgrasp_fusion::{DepthScaleConfig, FusionConfig};
-use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, GripperModel, Workspace};
-use psgrasp_inference::BackendConfig;
+use psgrasp_geometry::{CameraIntrinsics, CameraModel};
 use psgrasp_ipc::ChannelConfig;
-use psgrasp_selection::SelectionConfig;
+pub use psgrasp_perception::CellConfig;
+use psgrasp_perception::NoUnknownKeys;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -34,6 +33,7 @@ pub enum ConfigError {
         #[source]
         source: toml::de::Error,
     },
+
     /// The values are inconsistent or out of range.
     #[error("invalid config {path}: {field}: {reason}")]
     Invalid {
@@ -46,28 +46,22 @@ pub enum ConfigError {
     },
 }
 
-/// The whole pipeline configuration.
+/// The whole pipeline configuration: the process graph, the depth source and the cell
+/// ([`CellConfig`]: workspace, bin, gripper, fusion, depth scale, inference, selection and how
+/// the perception steps are joined), whose tables sit at the top level of the file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-#[serde(default, deny_unknown_fields)]
+#[serde(default)]
 pub struct PipelineConfig {
     /// Process graph and queue settings.
     pub pipeline: PipelineSection,
     /// Depth source.
     pub camera: CameraSection,
-    /// The voxel grid over the bin.
-    pub workspace: Workspace,
-    /// The bin.
-    pub bin: BinModel,
-    /// The gripper.
-    pub gripper: GripperModel,
-    /// TSDF / normal-grid fusion.
-    pub fusion: FusionConfig,
-    /// Per-frame depth-scale correction against the bin before fusion (off by default).
-    pub depth_scale: DepthScaleConfig,
-    /// Inference backend.
-    pub inference: BackendConfig,
-    /// Grasp selection.
-    pub selection: SelectionConfig,
+    /// The cell: what every perception step needs (its tables at the top level).
+    #[serde(flatten)]
+    pub cell: CellConfig,
+    /// Refuses top-level keys that no table takes.
+    #[serde(flatten, skip_serializing)]
+    pub unknown_keys: NoUnknownKeys,
 }
 
 /// Process graph and queues.
@@ -271,10 +265,11 @@ impl PipelineConfig {
 
     /// Joins the model backend's relative paths onto `base` (see [`PipelineConfig::load`]).
     fn resolve_paths(&mut self, base: &Path) {
-        self.inference.resolve_paths(base);
+        self.cell.inference.resolve_paths(base);
     }
 
-    /// Parses and validates TOML text (`origin` names it in errors).
+    /// Parses and validates TOML text (`origin` names it in errors); unknown keys are refused
+    /// at every level.
     pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
         let cfg: Self = toml::from_str(text).map_err(|source| ConfigError::Parse {
             path: origin.into(),
@@ -401,34 +396,7 @@ impl PipelineConfig {
                 "must be ≥ 1".into(),
             ));
         }
-        self.workspace
-            .validate()
-            .map_err(|e| bad("workspace", e.to_string()))?;
-        self.depth_scale
-            .validate()
-            .map_err(|e| bad("depth_scale", e.to_string()))?;
-        let g = &self.gripper;
-        let extra = [g.max_opening_m, g.tip_beyond_tcp_m];
-        let mut dims = g
-            .finger_size_m
-            .iter()
-            .chain(g.palm_size_m.iter())
-            .chain(extra.iter());
-        if !dims.all(|v| v.is_finite() && *v >= 0.0) || g.max_opening_m <= 0.0 {
-            return Err(bad(
-                "gripper",
-                "sizes must be finite, non-negative, max_opening_m > 0".into(),
-            ));
-        }
-        let b = &self.bin;
-        let sizes_ok = b.inner_size_m.iter().all(|v| v.is_finite() && *v > 0.0);
-        let wall_ok = b.wall_thickness_m.is_finite() && b.wall_thickness_m >= 0.0;
-        if !(sizes_ok && wall_ok) {
-            return Err(bad(
-                "bin",
-                "inner_size_m must be > 0 and wall_thickness_m ≥ 0".into(),
-            ));
-        }
+        self.cell.validate().map_err(|e| bad(e.field, e.reason))?;
         Ok(())
     }
 
@@ -441,10 +409,11 @@ impl PipelineConfig {
                 workspace_from_camera: p.isometry(),
             },
             None => {
-                let c = self.bin.floor_center;
+                let bin = &self.cell.bin;
+                let c = bin.floor_center;
                 CameraModel::top_down(
                     self.camera.intrinsics,
-                    Point3::new(c.x, c.y, self.bin.rim_z() + self.camera.height_above_rim_m),
+                    Point3::new(c.x, c.y, bin.rim_z() + self.camera.height_above_rim_m),
                 )
             }
         }
@@ -454,6 +423,7 @@ impl PipelineConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use psgrasp_inference::BackendConfig;
 
     fn parse(s: &str) -> Result<PipelineConfig, ConfigError> {
         PipelineConfig::parse(s, Path::new("<test>"))
@@ -463,7 +433,7 @@ mod tests {
     fn shipped_default_config_is_valid() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/default.toml");
         let cfg = PipelineConfig::load(&path).expect("config/default.toml must load");
-        assert_eq!(cfg.workspace, Workspace::default());
+        assert_eq!(cfg.cell.workspace, psgrasp_geometry::Workspace::default());
     }
 
     #[test]
@@ -478,7 +448,7 @@ mod tests {
         .unwrap();
         let cfg = PipelineConfig::load(&file).unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
-        let BackendConfig::Learned(l) = cfg.inference else {
+        let BackendConfig::Learned(l) = cfg.cell.inference else {
             panic!("expected a learned backend");
         };
         assert_eq!(l.model_dir, dir.join("config/../models/m"));
@@ -497,7 +467,7 @@ mod tests {
         .unwrap();
         let cfg = PipelineConfig::load(&file).unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
-        let BackendConfig::Vgn(v) = cfg.inference else {
+        let BackendConfig::Vgn(v) = cfg.cell.inference else {
             panic!("expected a vgn backend");
         };
         assert_eq!(v.model_dir, dir.join("config/../models/vgn"));
@@ -536,9 +506,20 @@ mod tests {
         assert!(
             parse("[depth_scale]\nenabled = true")
                 .unwrap()
+                .cell
                 .depth_scale
                 .enabled
         );
+        let e = parse("[perception]\nmax_grasps_per_frame = 0").unwrap_err();
+        assert!(
+            e.to_string().contains("perception.max_grasps_per_frame"),
+            "{e}"
+        );
+        let e = parse("[inferense]\nkind = \"analytic\"").unwrap_err();
+        assert!(matches!(e, ConfigError::Parse { .. }), "{e}");
+        assert!(e.to_string().contains("inferense"), "{e}");
+        let e = parse("[selection]\ntop_kk = 3").unwrap_err();
+        assert!(e.to_string().contains("top_kk"), "{e}");
         let e = PipelineConfig::load(Path::new("/nonexistent/psgrasp.toml")).unwrap_err();
         assert!(matches!(e, ConfigError::Read { .. }));
     }
@@ -548,8 +529,8 @@ mod tests {
         let cfg = PipelineConfig::default();
         let cam = cfg.camera_model();
         let eye = cam.eye();
-        assert!((eye.x - cfg.bin.floor_center.x).abs() < 1e-6);
-        assert!(eye.z > cfg.bin.rim_z());
+        assert!((eye.x - cfg.cell.bin.floor_center.x).abs() < 1e-6);
+        assert!(eye.z > cfg.cell.bin.rim_z());
         let axis = cam.workspace_from_camera.rotation * Vector3::z();
         assert!(axis.z < -0.999);
     }

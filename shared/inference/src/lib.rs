@@ -121,6 +121,21 @@ pub trait InferenceBackend: Send {
     ) -> Result<Vec<GraspConfiguration>, InferenceError>;
 }
 
+/// A borrowed backend is a backend (the evaluation lends its detectors to a perception chain).
+impl<B: InferenceBackend + ?Sized> InferenceBackend for &mut B {
+    fn name(&self) -> &str {
+        (**self).name()
+    }
+
+    fn infer(
+        &mut self,
+        grid: &NormalGridView<'_>,
+        seed: u64,
+    ) -> Result<Vec<GraspConfiguration>, InferenceError> {
+        (**self).infer(grid, seed)
+    }
+}
+
 /// Which backend to run and its settings; `kind` selects the variant (`kind = "analytic"`), the
 /// other keys are that backend's fields (all optional, defaults apply).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

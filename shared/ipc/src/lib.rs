@@ -26,7 +26,10 @@ pub mod tracker;
 pub mod transport;
 
 pub use header::{now_ns, FrameHeader, MessageKind, Stage, Stamp, StatusCode, PROTOCOL_VERSION};
-pub use records::{GraspRecord, NextPickRequest, NextPickResponse, PickRecord, StageStats};
+pub use records::{
+    GraspRecord, NextPickMode, NextPickRequest, NextPickResponse, NextPickStatus, PickRecord,
+    StageStats,
+};
 pub use tracker::{FrameTracker, TrackerEvent};
 pub use transport::{
     cleanup_dead_nodes, ChannelConfig, DropPolicy, FramePublisher, FrameSubscriber, InputPort,

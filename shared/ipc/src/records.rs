@@ -159,10 +159,75 @@ pub struct StageStats {
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[type_name("psgrasp::NextPickRequest/v1")]
 pub struct NextPickRequest {
-    /// 0 = the next pick of the latest frame; 1 = the previous pick failed, give the next one.
+    /// A [`NextPickMode`] as `u32` (0 current, 1 previous failed → next); read it with
+    /// [`NextPickRequest::mode`].
     pub mode: u32,
     /// Reserved, zero.
     pub reserved: u32,
+}
+
+/// What a [`NextPickRequest`] asks for (its `mode` on the wire).
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NextPickMode {
+    /// The pick handed out now (the same one again until it is reported failed or a new frame
+    /// arrives).
+    Current = 0,
+    /// The previous pick failed: move on to the next one.
+    AfterFailure = 1,
+}
+
+impl NextPickMode {
+    /// The mode of a wire value; `None` for a value no version of the protocol defines.
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            0 => Some(Self::Current),
+            1 => Some(Self::AfterFailure),
+            _ => None,
+        }
+    }
+}
+
+impl NextPickRequest {
+    /// A request for `mode`.
+    pub fn new(mode: NextPickMode) -> Self {
+        Self {
+            mode: mode as u32,
+            reserved: 0,
+        }
+    }
+
+    /// The requested mode; `None` for an undefined wire value.
+    pub fn mode(&self) -> Option<NextPickMode> {
+        NextPickMode::from_u32(self.mode)
+    }
+}
+
+/// The answer's `status` on the wire.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NextPickStatus {
+    /// A pick is attached.
+    Pick = 0,
+    /// No frame has been processed yet.
+    NoFrameYet = 1,
+    /// Every pick of the latest frame has been handed out.
+    Exhausted = 2,
+    /// The request's mode is not one this server knows.
+    BadRequest = 3,
+}
+
+impl NextPickStatus {
+    /// The status of a wire value; `None` for a value no version of the protocol defines.
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            0 => Some(Self::Pick),
+            1 => Some(Self::NoFrameYet),
+            2 => Some(Self::Exhausted),
+            3 => Some(Self::BadRequest),
+            _ => None,
+        }
+    }
 }
 
 /// The answer to a [`NextPickRequest`].
@@ -170,7 +235,8 @@ pub struct NextPickRequest {
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[type_name("psgrasp::NextPickResponse/v1")]
 pub struct NextPickResponse {
-    /// 0 = a pick is attached; 1 = no frame processed yet; 2 = all picks of the latest frame used.
+    /// A [`NextPickStatus`] as `u32` (0 pick, 1 no frame yet, 2 exhausted, 3 bad request); read
+    /// it with [`NextPickResponse::status`].
     pub status: u32,
     /// Reserved, zero.
     pub reserved: u32,
@@ -178,6 +244,32 @@ pub struct NextPickResponse {
     pub frame_id: u64,
     /// The pick (valid when `status == 0`).
     pub pick: PickRecord,
+}
+
+impl NextPickResponse {
+    /// An answer without a pick.
+    pub fn without_pick(status: NextPickStatus, frame_id: u64) -> Self {
+        Self {
+            status: status as u32,
+            frame_id,
+            ..Default::default()
+        }
+    }
+
+    /// The answer carrying `pick` of `frame_id`.
+    pub fn with_pick(frame_id: u64, pick: PickRecord) -> Self {
+        Self {
+            status: NextPickStatus::Pick as u32,
+            reserved: 0,
+            frame_id,
+            pick,
+        }
+    }
+
+    /// The status; `None` for an undefined wire value.
+    pub fn status(&self) -> Option<NextPickStatus> {
+        NextPickStatus::from_u32(self.status)
+    }
 }
 
 #[cfg(test)]
@@ -191,6 +283,32 @@ mod tests {
         assert_eq!(size_of::<PickRecord>(), 88);
         assert_eq!(size_of::<StageStats>(), 72);
         assert_eq!(size_of::<NextPickResponse>(), 104);
+    }
+
+    #[test]
+    fn next_pick_wire_values_round_trip_and_unknown_ones_are_refused() {
+        for mode in [NextPickMode::Current, NextPickMode::AfterFailure] {
+            assert_eq!(NextPickRequest::new(mode).mode(), Some(mode));
+        }
+        assert_eq!(NextPickRequest::new(NextPickMode::AfterFailure).mode, 1);
+        let bogus = NextPickRequest {
+            mode: 7,
+            reserved: 0,
+        };
+        assert_eq!(bogus.mode(), None);
+        for status in [
+            NextPickStatus::Pick,
+            NextPickStatus::NoFrameYet,
+            NextPickStatus::Exhausted,
+            NextPickStatus::BadRequest,
+        ] {
+            assert_eq!(NextPickStatus::from_u32(status as u32), Some(status));
+        }
+        assert_eq!(
+            NextPickResponse::without_pick(NextPickStatus::Exhausted, 9).status,
+            2
+        );
+        assert_eq!(NextPickStatus::from_u32(4), None);
     }
 
     #[test]

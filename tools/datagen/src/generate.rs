@@ -3,8 +3,8 @@ use crate::dataset::{SceneMeta, SceneRecord, FORMAT_VERSION};
 use crate::labels::{generate_labels, LabelConfig};
 use crate::targets::{label_grid, normal_grid};
 use crate::DatagenError;
-use psgrasp_fusion::FusionConfig;
-use psgrasp_geometry::{BinModel, CameraIntrinsics, GripperModel, Workspace};
+use psgrasp_geometry::CameraIntrinsics;
+use psgrasp_perception::{CellConfig, NoUnknownKeys};
 use psgrasp_sim::{
     add_dex_noise, default_camera, generate_scene, MeshLibrary, NoiseConfig, ObjectLibrary,
     SceneRecipe, SettleConfig, Split,
@@ -65,40 +65,38 @@ impl Difficulty {
 
 /// Everything that shapes a generated scene apart from its seed and difficulty.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(default)]
 pub struct GenerationConfig {
     /// Camera intrinsics (the camera is placed by `psgrasp_sim::default_camera`).
     pub intrinsics: CameraIntrinsics,
-    /// The voxel grid of the training targets.
-    pub workspace: Workspace,
-    /// The default bin (the small bin keeps its placement).
-    pub bin: BinModel,
-    /// The gripper.
-    pub gripper: GripperModel,
+    /// The cell the data is made for: its workspace (the voxel grid of the training targets),
+    /// default bin (the small bin keeps its placement), gripper and fusion; its tables sit at
+    /// the top level. Depth-scale correction, inference and selection are not used here.
+    #[serde(flatten)]
+    pub cell: CellConfig,
     /// Label sampling.
     pub labels: LabelConfig,
     /// Depth noise.
     pub noise: NoiseConfig,
-    /// Fusion of the normal grid.
-    pub fusion: FusionConfig,
     /// Physics.
     pub settle: SettleConfig,
     /// Range of the random object scale.
     pub scale_range: [f32; 2],
+    /// Refuses top-level keys that no table takes.
+    #[serde(flatten, skip_serializing)]
+    pub unknown_keys: NoUnknownKeys,
 }
 
 impl Default for GenerationConfig {
     fn default() -> Self {
         Self {
             intrinsics: CameraIntrinsics::default_640x480(),
-            workspace: Workspace::default(),
-            bin: BinModel::default(),
-            gripper: GripperModel::default(),
+            cell: CellConfig::default(),
             labels: LabelConfig::default(),
             noise: NoiseConfig::default(),
-            fusion: FusionConfig::default(),
             settle: SettleConfig::default(),
             scale_range: [0.8, 1.2],
+            unknown_keys: NoUnknownKeys,
         }
     }
 }
@@ -150,7 +148,13 @@ pub fn generate_record_with_recipe(
     config: &GenerationConfig,
 ) -> Result<SceneRecord, DatagenError> {
     let pool = library.select(Some(difficulty.split()), difficulty.simple_only());
-    let (scene, settle) = generate_scene(derive_seed(seed, 1), &pool, &config.bin, meshes, recipe)?;
+    let (scene, settle) = generate_scene(
+        derive_seed(seed, 1),
+        &pool,
+        &config.cell.bin,
+        meshes,
+        recipe,
+    )?;
     let camera = default_camera(scene.bin(), config.intrinsics);
     let rendering = scene.render(&camera);
     let noisy = difficulty.noisy();
@@ -163,12 +167,16 @@ pub fn generate_record_with_recipe(
         &scene,
         &camera,
         &rendering,
-        &config.gripper,
+        &config.cell.gripper,
         &config.labels,
         derive_seed(seed, 3),
     );
-    let grid = normal_grid(&depth, &camera, &config.workspace, &config.fusion)?;
-    let labels_grid = label_grid(&label_set.labels, &config.gripper, &config.workspace);
+    let grid = normal_grid(&depth, &camera, &config.cell.workspace, &config.cell.fusion)?;
+    let labels_grid = label_grid(
+        &label_set.labels,
+        &config.cell.gripper,
+        &config.cell.workspace,
+    );
     let meta = SceneMeta {
         format_version: FORMAT_VERSION,
         generator: format!("psgrasp-datagen {}", env!("CARGO_PKG_VERSION")),
@@ -179,8 +187,8 @@ pub fn generate_record_with_recipe(
         object_source: object_source.to_owned(),
         noise_applied: noisy,
         camera,
-        workspace: config.workspace,
-        gripper: config.gripper,
+        workspace: config.cell.workspace,
+        gripper: config.cell.gripper,
         truncation_m: grid.truncation_m,
         scene: scene.description().clone(),
         settle,
@@ -212,7 +220,7 @@ mod tests {
             LabelConfig::default().baselines_per_contact
         );
         assert_eq!(cfg.scale_range, [0.9, 1.1]);
-        assert_eq!(cfg.workspace, Workspace::default());
+        assert_eq!(cfg.cell.workspace, psgrasp_geometry::Workspace::default());
         assert!(
             toml::from_str::<GenerationConfig>("[labels]\ncontacts_per_object = -3\n").is_err()
         );

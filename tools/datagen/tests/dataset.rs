@@ -137,9 +137,9 @@ fn franka_fingertip_config_changes_the_tip_depth_only_and_typos_are_refused() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../config/datagen-franka-fingertip.toml");
     let franka: GenerationConfig = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
-    assert_eq!(franka.gripper.tip_beyond_tcp_m, 0.0095);
+    assert_eq!(franka.cell.gripper.tip_beyond_tcp_m, 0.0095);
     let mut back = franka.clone();
-    back.gripper.tip_beyond_tcp_m = GenerationConfig::default().gripper.tip_beyond_tcp_m;
+    back.cell.gripper.tip_beyond_tcp_m = GenerationConfig::default().cell.gripper.tip_beyond_tcp_m;
     assert_eq!(back, GenerationConfig::default());
     // A misspelt table would otherwise be dropped silently and train on the default hand.
     let typo = "[griper]\ntip_beyond_tcp_m = 0.0095\n";

@@ -408,23 +408,27 @@ mod tests {
         // The depth-scale variant adds the pipeline's correction in perception, nothing else.
         let corrected =
             load_protocol(Some(&dir.join("eval-protocol-paper-depth-scale.toml"))).unwrap();
-        assert!(corrected.depth_scale.enabled && !paper.depth_scale.enabled);
+        assert!(corrected.cell().depth_scale.enabled && !paper.cell().depth_scale.enabled);
         let mut back = corrected.clone();
-        back.depth_scale.enabled = false;
+        back.scenes.cell.depth_scale.enabled = false;
         assert_eq!(back, paper);
         // The wide-opening variant widens the commanded opening, nothing else.
         let wide = load_protocol(Some(&dir.join("eval-protocol-paper-wide-opening.toml"))).unwrap();
-        assert_eq!(wide.selection.opening_clearance_m, 0.04);
-        assert!(corrected.selection.opening_clearance_m < wide.selection.opening_clearance_m);
+        assert_eq!(wide.cell().selection.opening_clearance_m, 0.04);
+        assert!(
+            corrected.cell().selection.opening_clearance_m
+                < wide.cell().selection.opening_clearance_m
+        );
         let mut back = wide.clone();
-        back.selection.opening_clearance_m = corrected.selection.opening_clearance_m;
+        back.scenes.cell.selection.opening_clearance_m =
+            corrected.cell().selection.opening_clearance_m;
         assert_eq!(back, corrected);
         // The Franka-fingertip variant changes the hand's tip depth, nothing else, and the
         // models trained for the 15 mm tip are refused under it (their card's approach depth).
         let franka = load_protocol(Some(&dir.join("eval-protocol-franka-fingertip.toml"))).unwrap();
-        assert_eq!(franka.scenes.gripper.tip_beyond_tcp_m, 0.0095);
+        assert_eq!(franka.cell().gripper.tip_beyond_tcp_m, 0.0095);
         let mut back = franka.clone();
-        back.scenes.gripper.tip_beyond_tcp_m = wide.scenes.gripper.tip_beyond_tcp_m;
+        back.scenes.cell.gripper.tip_beyond_tcp_m = wide.cell().gripper.tip_beyond_tcp_m;
         assert_eq!(back, wide);
         let shipped = crate::DetectorSpec::for_model_dir("default", dir.join("../models/default"));
         assert!(shipped.build(&wide).is_ok());

@@ -33,7 +33,7 @@
 //! learned one otherwise.
 use crate::protocol::ProtocolConfig;
 use crate::EvalError;
-use psgrasp_inference::{backend_for_workspace, BackendConfig, InferenceBackend, LearnedConfig};
+use psgrasp_inference::{BackendConfig, InferenceBackend, LearnedConfig};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::{Path, PathBuf};
 
@@ -209,37 +209,32 @@ impl DetectorSpec {
         }
     }
 
-    /// The backend configuration as the evaluation runs it: an analytic backend without a
-    /// contact region gets the bin interior (as the inference stage does), so the thin bin walls
-    /// are never grasped.
+    /// The backend configuration as the evaluation runs it: as the cell runs it
+    /// ([`psgrasp_perception::CellConfig::effective_backend`]: an analytic backend without a
+    /// contact region gets the bin interior, so the thin bin walls are never grasped).
     pub fn effective_backend(&self, protocol: &ProtocolConfig) -> DetectorBackend {
         match &self.backend {
             DetectorBackend::Backend(b) => {
-                DetectorBackend::Backend(b.clone().with_bin_interior_contacts(
-                    &protocol.scenes.bin,
-                    protocol.contact_region_inset_m,
-                ))
+                DetectorBackend::Backend(protocol.cell().effective_backend(b))
             }
             DetectorBackend::Oracle => DetectorBackend::Oracle,
         }
     }
 
-    /// Builds the backend for the protocol's workspace and gripper.
+    /// Builds the backend for the protocol's cell (its workspace and gripper).
     pub fn build(&self, protocol: &ProtocolConfig) -> Result<BuiltDetector, EvalError> {
         self.validate()?;
-        let DetectorBackend::Backend(backend) = self.effective_backend(protocol) else {
+        let DetectorBackend::Backend(backend) = &self.backend else {
             return Ok(BuiltDetector::Oracle);
         };
-        backend_for_workspace(
-            &backend,
-            &protocol.scenes.workspace,
-            protocol.scenes.gripper,
-        )
-        .map(BuiltDetector::Backend)
-        .map_err(|source| EvalError::Detector {
-            name: self.name.clone(),
-            source,
-        })
+        protocol
+            .cell()
+            .build_backend(backend)
+            .map(BuiltDetector::Backend)
+            .map_err(|source| EvalError::Detector {
+                name: self.name.clone(),
+                source,
+            })
     }
 }
 
@@ -440,7 +435,7 @@ mod tests {
             panic!("analytic expected")
         };
         let region = a.contact_region.unwrap();
-        let bin = proto.scenes.bin;
+        let bin = proto.scenes.cell.bin;
         assert!(region.contains(&bin.floor_center.map(|v| v + 0.01)));
         assert!(!region.contains(&(bin.floor_center - nalgebra::Vector3::new(0.0, 0.0, 0.001))));
     }

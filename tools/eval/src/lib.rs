@@ -39,6 +39,22 @@ pub use protocol::{
 
 use std::path::PathBuf;
 
+impl From<psgrasp_perception::PerceptionError> for EvalError {
+    fn from(e: psgrasp_perception::PerceptionError) -> Self {
+        use psgrasp_perception::PerceptionError as P;
+        match e {
+            P::Config(c) => Self::Cell(c),
+            P::Fusion(f) => Self::Fusion(f),
+            P::Inference(i) => Self::Inference(i),
+            P::Selection(s) => Self::Selection(s),
+            P::NoBackend => Self::InvalidConfig {
+                field: "detector",
+                reason: "a backend detector needs its backend",
+            },
+        }
+    }
+}
+
 /// Errors of the evaluation.
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
@@ -90,6 +106,9 @@ pub enum EvalError {
     /// Grasp selection could not run.
     #[error("selection failed: {0}")]
     Selection(#[from] psgrasp_selection::SelectionError),
+    /// The cell's settings are out of range.
+    #[error("invalid cell setting: {0}")]
+    Cell(#[from] psgrasp_perception::InvalidSetting),
     /// A records or run file is unreadable or could not be encoded.
     #[error("{path}: {reason}")]
     Records {

@@ -7,8 +7,9 @@
 //!
 //! 1. render the depth image of the current scene (dex noise on `challenging`; frame 0 uses the
 //!    dataset's noise seed);
-//! 2. **detection** (timed): fuse the normal grid → the detector's [`InferenceBackend::infer`] →
-//!    [`psgrasp_selection::select`] — configurations by antipodal quality, for each the first 8 of 18
+//! 2. **detection** (timed): the pipeline's perception chain ([`Perception::detect_with`]:
+//!    depth-scale correction and fusion → the detector's [`InferenceBackend::infer`], ranked and
+//!    cut as in the pipeline → selection) — configurations by antipodal quality, for each the first 8 of 18
 //!    approaches by collision score, the first with `q > 0.5`, `σ > 0.5`, a free grasp pose,
 //!    approach path and pre-grasp pose against the observed scene (and, with
 //!    [`ProtocolConfig::skip_colliding_pregrasps`], a pre-grasp pose free in the simulated scene);
@@ -24,26 +25,27 @@ use crate::execute::{
 use crate::EvalError;
 use nalgebra::Point3;
 use psgrasp_datagen::{derive_seed, generate_labels, Difficulty, GenerationConfig};
-use psgrasp_fusion::{correct_depth_scale, fuse_normal_grid, DepthScaleConfig};
 use psgrasp_geometry::{CameraModel, GraspConfiguration};
 use psgrasp_inference::InferenceBackend;
-use psgrasp_selection::{select_filtered, RejectionCounts, SelectionConfig};
+use psgrasp_perception::{CellConfig, DetectionTimings, Perception, Proposer};
+use psgrasp_selection::RejectionCounts;
 use psgrasp_sim::{
     add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Rendering, Scene,
 };
 use serde::{Deserialize, Serialize};
-use std::borrow::Cow;
 use std::time::Instant;
 
 /// Everything that shapes an evaluation apart from the detector, level, seed and scene index.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(default)]
 pub struct ProtocolConfig {
-    /// Scene generation, camera, grid, gripper, noise and fusion, exactly as for the dataset
-    /// (`labels` is not used here).
+    /// Scene generation (camera, noise, physics) and the cell — workspace, bin, gripper,
+    /// fusion, depth-scale correction, selection and how the steps are joined — exactly as for
+    /// the dataset and the pipeline: their tables sit at the top level (`[gripper]`,
+    /// `[selection]`, `[depth_scale]`, …). `labels` is used by the oracle only; the detector's
+    /// backend comes from the detector list, not from `[inference]`.
+    #[serde(flatten)]
     pub scenes: GenerationConfig,
-    /// Grasp selection (the pipeline's); the best pick is executed.
-    pub selection: SelectionConfig,
     /// Grasp execution in physics.
     pub execution: ExecutionConfig,
     /// The paper's "executable" grasp: selection also tests each pick's open hand at the
@@ -52,35 +54,31 @@ pub struct ProtocolConfig {
     /// a failed attempt (`pregrasp_collision`). Off by default: a perception-only pipeline cannot
     /// look into the true scene.
     pub skip_colliding_pregrasps: bool,
-    /// Perception: the pipeline's per-frame depth-scale correction against the bin before fusion
-    /// (`[depth_scale]` of the pipeline config; off by default). Part of the timed fusion.
-    pub depth_scale: DepthScaleConfig,
     /// A scene ends after this many failed attempts in a row (the paper: 3).
     pub max_consecutive_failures: u32,
     /// A scene ends after this many attempts in any case.
     pub max_attempts_per_scene: u32,
-    /// Contacts of an analytic detector without its own `contact_region` are kept this far
-    /// inside the bin's inner volume (as in the inference stage), metres.
-    pub contact_region_inset_m: f32,
 }
 
 impl Default for ProtocolConfig {
     fn default() -> Self {
         Self {
             scenes: GenerationConfig::default(),
-            selection: SelectionConfig::default(),
             execution: ExecutionConfig::default(),
             skip_colliding_pregrasps: false,
-            depth_scale: DepthScaleConfig::default(),
             max_consecutive_failures: 3,
             max_attempts_per_scene: 100,
-            contact_region_inset_m: 0.005,
         }
     }
 }
 
 impl ProtocolConfig {
-    /// Checks the settings this crate owns and the selection and execution settings.
+    /// The cell the detectors run in (the pipeline's perception chain and its settings).
+    pub fn cell(&self) -> &CellConfig {
+        &self.scenes.cell
+    }
+
+    /// Checks the settings this crate owns, the cell's and the execution settings.
     pub fn validate(&self) -> Result<(), EvalError> {
         if self.max_consecutive_failures == 0 {
             return Err(EvalError::InvalidConfig {
@@ -94,14 +92,10 @@ impl ProtocolConfig {
                 reason: "must be at least 1",
             });
         }
-        if !(self.contact_region_inset_m.is_finite() && self.contact_region_inset_m >= 0.0) {
-            return Err(EvalError::InvalidConfig {
-                field: "contact_region_inset_m",
-                reason: "must be >= 0",
-            });
-        }
-        self.depth_scale.validate()?;
-        self.selection.validate()?;
+        let cell = self.cell();
+        cell.validate()?;
+        cell.depth_scale.validate()?;
+        cell.selection.validate()?;
         self.execution.validate()
     }
 }
@@ -395,15 +389,21 @@ pub fn run_scene_with(
     cfg.validate()?;
     let started = Instant::now();
     let gen = &cfg.scenes;
+    let gripper = gen.cell.gripper;
     let seed = scene_seed(run_seed, index);
     let mut recipe = level.recipe(&gen.settle);
     recipe.scale_range = gen.scale_range;
     let pool = library.select(Some(level.split()), level.simple_only());
-    let (first, _) = generate_scene(derive_seed(seed, 1), &pool, &gen.bin, meshes, &recipe)?;
+    let (first, _) = generate_scene(derive_seed(seed, 1), &pool, &gen.cell.bin, meshes, &recipe)?;
     let camera = default_camera(first.bin(), gen.intrinsics);
     let objects = first.object_count();
     let mut scene = first;
 
+    let oracle = matches!(detector, Detector::Oracle);
+    let mut perception = match &mut detector {
+        Detector::Backend(b) => Perception::with_backend(cfg.cell(), Box::new(&mut **b))?,
+        Detector::Oracle => Perception::for_external_proposals(cfg.cell())?,
+    };
     let mut attempts = Vec::new();
     let (mut successes, mut lost, mut failures_in_row) = (0u32, 0usize, 0u32);
     let (mut frames, mut detection_ms, mut configurations) = (0u32, 0.0f64, 0usize);
@@ -428,60 +428,47 @@ pub fn run_scene_with(
             add_dex_noise(&rendering.depth, noise_seed, &gen.noise)
         });
         let render_ms = ms(t);
-        let t = Instant::now();
-        // Owned only where it may change: noisy frames, or any frame the correction looks at.
-        let mut depth = noisy.map_or(Cow::Borrowed(&rendering.depth), Cow::Owned);
-        let scale = if cfg.depth_scale.enabled {
-            correct_depth_scale(depth.to_mut(), &camera, scene.bin(), &cfg.depth_scale)?.0
-        } else {
-            None
-        };
-        let grid = fuse_normal_grid(&depth, &camera, &gen.workspace, &gen.fusion)?;
-        let fusion_ms = ms(t);
-        let t = Instant::now();
+        let depth = noisy.as_ref().unwrap_or(&rendering.depth);
         let detect_seed = derive_seed(derive_seed(seed, 4), k);
-        let configs = match &mut detector {
-            Detector::Backend(b) => b.infer(&grid.view(), detect_seed)?,
-            Detector::Oracle => {
-                oracle_configurations(&scene, &camera, &rendering, cfg, detect_seed)
-            }
+        // The detection is the pipeline's perception chain; only the oracle's proposals and the
+        // paper's pre-grasp test in the simulated scene come from the simulation.
+        let mut propose_oracle =
+            || oracle_configurations(&scene, &camera, &rendering, cfg, detect_seed);
+        let proposer = if oracle {
+            Proposer::External(&mut propose_oracle)
+        } else {
+            Proposer::Backend
         };
-        let inference_ms = ms(t);
-        let t = Instant::now();
         let mut skipped_in_simulation = 0usize;
-        let picks = select_filtered(
-            &configs,
-            &grid.view(),
-            scene.bin(),
-            &gen.gripper,
-            &cfg.selection,
-            |pick| {
-                if !cfg.skip_colliding_pregrasps {
-                    return true;
-                }
-                let free = !pregrasp_collides(
-                    &scene,
-                    &gen.gripper,
-                    &GraspCommand::from(pick),
-                    &cfg.execution,
-                );
-                skipped_in_simulation += usize::from(!free);
-                free
-            },
-        )?;
-        let selection_ms = ms(t);
+        let detection = perception.detect_with(depth, &camera, detect_seed, proposer, |pick| {
+            if !cfg.skip_colliding_pregrasps {
+                return true;
+            }
+            let free =
+                !pregrasp_collides(&scene, &gripper, &GraspCommand::from(pick), &cfg.execution);
+            skipped_in_simulation += usize::from(!free);
+            free
+        })?;
+        let DetectionTimings {
+            fusion_ms,
+            inference_ms,
+            selection_ms,
+        } = detection.timings;
+        let configs = &detection.configurations;
+        let picks = &detection.selection;
+        let scale = detection.depth_scale.and_then(|s| s.estimate);
         frames += 1;
         detection_ms += fusion_ms + inference_ms + selection_ms;
         configurations += configs.len();
         let Some(pick) = picks.picks.first() else {
-            final_rejections = Some(picks.rejected);
+            final_rejections = Some(picks.rejected.clone());
             break SceneEnd::NoGrasp;
         };
         let t = Instant::now();
         let ex = execute_grasp(
             &scene,
             meshes,
-            &gen.gripper,
+            &gripper,
             &GraspCommand::from(pick),
             &cfg.execution,
         )?;
@@ -555,18 +542,25 @@ fn oracle_configurations(
     seed: u64,
 ) -> Vec<GraspConfiguration> {
     let gen = &cfg.scenes;
-    generate_labels(scene, camera, rendering, &gen.gripper, &gen.labels, seed)
-        .labels
-        .iter()
-        .map(|l| GraspConfiguration {
-            contact: l.contact,
-            baseline: l.baseline,
-            collision_scores: l.collision_free.map(|free| if free { 1.0 } else { 0.0 }),
-            width: l.width,
-            quality: l.quality,
-            kappa: 0.0,
-        })
-        .collect()
+    generate_labels(
+        scene,
+        camera,
+        rendering,
+        &gen.cell.gripper,
+        &gen.labels,
+        seed,
+    )
+    .labels
+    .iter()
+    .map(|l| GraspConfiguration {
+        contact: l.contact,
+        baseline: l.baseline,
+        collision_scores: l.collision_free.map(|free| if free { 1.0 } else { 0.0 }),
+        width: l.width,
+        quality: l.quality,
+        kappa: 0.0,
+    })
+    .collect()
 }
 
 fn ms(t: Instant) -> f64 {

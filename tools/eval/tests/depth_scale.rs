@@ -30,7 +30,7 @@ fn the_scale_found_in_cluttered_noisy_frames_is_the_noise_factor() {
         recipe.scale_range = gen.scale_range;
         let pool = library.select(Some(level.split()), level.simple_only());
         let (scene, _) =
-            generate_scene(derive_seed(seed, 1), &pool, &gen.bin, &meshes, &recipe).unwrap();
+            generate_scene(derive_seed(seed, 1), &pool, &gen.cell.bin, &meshes, &recipe).unwrap();
         let camera = default_camera(scene.bin(), gen.intrinsics);
         let clean = scene.render(&camera).depth;
         // A calibrated frame: the scale is 1 and nothing is changed.
@@ -78,7 +78,7 @@ fn the_scale_found_in_cluttered_noisy_frames_is_the_noise_factor() {
     let scene = generate_scene(
         derive_seed(7, 0),
         &library.select(Some(Difficulty::Medium.split()), false),
-        &gen.bin,
+        &gen.cell.bin,
         &meshes,
         &Difficulty::Medium.recipe(&gen.settle),
     )
@@ -121,7 +121,7 @@ fn the_scale_found_in_cluttered_noisy_frames_is_the_noise_factor() {
 #[test]
 fn a_bad_depth_scale_setting_is_refused_by_the_protocol() {
     let mut proto = psgrasp_eval::ProtocolConfig::default();
-    proto.depth_scale.max_deviation = 0.9;
+    proto.scenes.cell.depth_scale.max_deviation = 0.9;
     let e = proto.validate().unwrap_err().to_string();
     assert!(e.contains("depth_scale.max_deviation"), "{e}");
 }

@@ -1,4 +1,4 @@
-//! What every stage process shares: argument parsing, config loading, the iceoryx2 node, the
+//! The context of a stage process: argument parsing, config loading, the iceoryx2 node, the
 //! WaitSet loop and the statistics it publishes.
 use anyhow::{Context, Result};
 use clap::Parser;
@@ -7,7 +7,17 @@ use iceoryx2::prelude::*;
 use psgrasp_config::PipelineConfig;
 use psgrasp_ipc::{now_ns, FramePublisher, InputPort, PipelineNode, Stage, StageStats};
 use std::path::PathBuf;
-use std::time::Duration;
+use std::time::{Duration, Instant};
+
+/// True (and `last` reset) when `interval_ms` has passed since `last`: statistics are due.
+pub fn stats_due(last: &mut Instant, interval_ms: u64) -> bool {
+    if last.elapsed() >= Duration::from_millis(interval_ms) {
+        *last = Instant::now();
+        true
+    } else {
+        false
+    }
+}
 
 /// Command-line arguments of a stage binary.
 #[derive(Debug, Clone, Parser)]

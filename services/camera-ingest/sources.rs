@@ -67,7 +67,7 @@ impl SyntheticSource {
         let s = &self.cfg.camera.synthetic;
         let scene_seed = s.seed.wrapping_add(k / s.frames_per_scene);
         if self.scene.as_ref().map(|(seed, _)| *seed) != Some(scene_seed) {
-            let scene = psgrasp_sim::procedural_scene(scene_seed, s.objects, &self.cfg.bin)
+            let scene = psgrasp_sim::procedural_scene(scene_seed, s.objects, &self.cfg.cell.bin)
                 .with_context(|| format!("generating synthetic scene {scene_seed}"))?;
             self.clean = Some(scene.render_depth(&self.camera));
             self.scene = Some((scene_seed, scene));
@@ -223,12 +223,12 @@ pub fn fit_workspace_to_plane(
     .context("fitting the support plane to place the workspace")?;
     // The plane (bin floor or table) goes where the configured bin floor is.
     let placement = psgrasp_fusion::PlacementConfig {
-        plane_height_m: cfg.bin.floor_center.z,
+        plane_height_m: cfg.cell.bin.floor_center.z,
     };
     Ok(psgrasp_fusion::workspace_camera_from_plane(
         &plane,
         intrinsics,
-        &cfg.workspace,
+        &cfg.cell.workspace,
         &placement,
     )?)
 }
