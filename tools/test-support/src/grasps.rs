@@ -1,10 +1,11 @@
 //! Gripper poses and checks of picks against a scene: the analytic backend as the pipeline
-//! configures it for a bin, gripper poses from axes, and points sampled through the gripper's
+//! configures it for a bin and default selection, gripper poses from axes, and points sampled through the gripper's
 //! boxes to test for penetration.
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use psgrasp_geometry::{BinModel, GripperModel};
+use psgrasp_fusion::NormalGrid;
+use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel};
 use psgrasp_inference::{AnalyticBackend, AnalyticConfig, ContactRegion};
-use psgrasp_selection::SelectedGrasp;
+use psgrasp_selection::{select, SelectedGrasp, Selection, SelectionConfig};
 
 /// Gripper pose with baseline `x`, approach `z` (y = z × x) and the TCP at `tcp`.
 pub fn gripper_pose(tcp: Point3<f32>, x: Vector3<f32>, z: Vector3<f32>) -> Isometry3<f32> {
@@ -28,6 +29,23 @@ pub fn analytic_backend_in_bin(bin: &BinModel, gripper: GripperModel) -> Analyti
         ..AnalyticConfig::default()
     };
     AnalyticBackend::new(cfg, gripper).expect("analytic backend")
+}
+
+/// [`select`] with the default selection settings on `grid`, for `bin` and `gripper`.
+pub fn select_default(
+    configs: &[GraspConfiguration],
+    grid: &NormalGrid,
+    bin: &BinModel,
+    gripper: &GripperModel,
+) -> Selection {
+    select(
+        configs,
+        &grid.view(),
+        bin,
+        gripper,
+        &SelectionConfig::default(),
+    )
+    .expect("selection")
 }
 
 /// `n`³ points evenly spread through each box of the gripper at `pose` with `opening_m`, from
