@@ -1,17 +1,14 @@
 //! Fusion timings on one core: `cargo bench -p psgrasp-fusion`.
 //!
-//! Renders an analytic bin scene (floor, sphere, box) top-down with the test ray caster, then
+//! Renders an analytic bin scene (floor, sphere, box) top-down with the test ray caster (`psgrasp_test_support::analytic`), then
 //! times `TsdfVolume::integrate` (into a freshly reset volume), `write_normal_grid` (into
 //! preallocated buffers), the whole frame (reset + integrate + extract) and the depth-scale
 //! estimate against a bin whose floor is the scene's (frame scaled by 1.02). Prints a Markdown
 //! table.
-#[path = "../tests/common/mod.rs"]
-mod common;
-
-use common::*;
 use nalgebra::Point3;
 use psgrasp_fusion::{estimate_depth_scale, DepthScaleConfig, FusionConfig, TsdfVolume};
 use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel};
+use psgrasp_test_support::analytic::*;
 use std::time::Instant;
 
 fn stats(mut v: Vec<f64>) -> (f64, f64, f64, f64) {

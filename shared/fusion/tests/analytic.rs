@@ -1,11 +1,9 @@
-//! Fusion of analytic scenes rendered by the ray caster in `common`: TSDF zero crossings,
+//! Fusion of analytic scenes rendered by the ray caster in `psgrasp_test_support::analytic`: TSDF zero crossings,
 //! nearest-surface normals, multi-view fusion and volume bookkeeping.
-mod common;
-
-use common::*;
 use nalgebra::Vector3;
 use psgrasp_fusion::{FusionConfig, NormalGrid, TsdfVolume};
 use psgrasp_geometry::CameraModel;
+use psgrasp_test_support::analytic::*;
 
 /// Ambiguity margin of the ground truth: 1.5 voxels.
 const MARGIN: f32 = 1.5 * 0.009;

@@ -1,10 +1,8 @@
 //! Bad inputs give clear errors, never panics, and leave the volume untouched.
-mod common;
-
-use common::*;
 use nalgebra::{Point3, Vector3};
 use psgrasp_fusion::{fuse_into, fuse_normal_grid, FusionConfig, FusionError, TsdfVolume};
 use psgrasp_geometry::{CameraIntrinsics, DepthError, DepthImage, GeometryError};
+use psgrasp_test_support::analytic::*;
 
 fn volume() -> TsdfVolume {
     TsdfVolume::new(workspace(), &FusionConfig::default()).unwrap()

@@ -1,13 +1,11 @@
 //! Support-plane fitting and workspace placement, on analytic frames and the real RealSense frame.
-mod common;
-
-use common::*;
 use nalgebra::{Point3, Vector3};
 use psgrasp_fusion::{
     fit_support_plane, fuse_normal_grid, load_depth_png, workspace_camera_from_plane, FusionConfig,
     FusionError, NormalGrid, PlacementConfig, Plane, PlaneFitConfig,
 };
 use psgrasp_geometry::{CameraIntrinsics, CameraModel, DepthImage};
+use psgrasp_test_support::analytic::*;
 
 const REAL: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),

@@ -1,8 +1,6 @@
 //! Volume bookkeeping: layouts, invariants, reset, repeat integration, one-shot helpers.
-mod common;
-
-use common::*;
 use psgrasp_fusion::{fuse_into, fuse_normal_grid, FusionConfig, TsdfVolume};
+use psgrasp_test_support::analytic::*;
 
 #[test]
 fn grid_invariants_and_one_shot_helpers_agree() {

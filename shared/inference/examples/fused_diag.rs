@@ -2,10 +2,10 @@
 //!
 //! `cargo run -p psgrasp-inference --example fused_diag -- [seeds] [objects]`
 use nalgebra::Point3;
-use psgrasp_fusion::{fuse_normal_grid, FusionConfig};
-use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, GripperModel, Workspace};
-use psgrasp_inference::{AnalyticBackend, AnalyticConfig, ContactRegion, InferenceBackend};
-use psgrasp_selection::{select, SelectionConfig};
+use psgrasp_geometry::{BinModel, GripperModel, Workspace};
+use psgrasp_inference::InferenceBackend;
+use psgrasp_test_support::grasps::{analytic_backend_in_bin, pick_gripper_points, select_default};
+use psgrasp_test_support::scenes::fused_top_down;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -15,34 +15,12 @@ fn main() {
     let gripper = GripperModel::default();
     for seed in 0..seeds {
         let scene = psgrasp_sim::procedural_scene(seed, n, &bin).expect("scene");
-        let camera = CameraModel::top_down(
-            CameraIntrinsics::default_640x480(),
-            Point3::new(0.288, 0.288, 0.018 + 0.28 + 0.6),
-        );
-        let depth = scene.render_depth(&camera);
-        let grid = fuse_normal_grid(
-            &depth,
-            &camera,
-            &Workspace::default(),
-            &FusionConfig::default(),
-        )
-        .expect("fusion");
-        let cfg = AnalyticConfig {
-            contact_region: Some(ContactRegion::inside_bin(&bin, 0.005)),
-            ..AnalyticConfig::default()
-        };
-        let mut backend = AnalyticBackend::new(cfg, gripper).expect("backend");
+        let grid = fused_top_down(&scene, &Workspace::default());
+        let mut backend = analytic_backend_in_bin(&bin, gripper);
         let t = std::time::Instant::now();
         let configs = backend.infer(&grid.view(), seed).expect("infer");
         let dt = t.elapsed();
-        let sel = select(
-            &configs,
-            &grid.view(),
-            &bin,
-            &gripper,
-            &SelectionConfig::default(),
-        )
-        .expect("select");
+        let sel = select_default(&configs, &grid, &bin, &gripper);
         // Deepest penetration of any pick's gripper (grasp + pre-grasp) into the exact objects.
         let mut worst = 0.0f32;
         let mut holds = 0;
@@ -51,21 +29,10 @@ fn main() {
             if (0..scene.object_count()).any(|o| scene.object_contains_point(o, &tcp)) {
                 holds += 1;
             }
-            for pose in [pick.workspace_from_gripper, pick.pregrasp] {
-                for b in gripper.boxes(&pose, pick.opening_m) {
-                    for i in 0..7 * 7 * 7 {
-                        let f = |v: usize| v as f32 / 3.0 - 1.0;
-                        let local = Point3::new(
-                            f(i % 7) * b.half_extents.x,
-                            f((i / 7) % 7) * b.half_extents.y,
-                            f(i / 49) * b.half_extents.z,
-                        );
-                        let p = b.parent_from_box * local;
-                        for o in 0..scene.object_count() {
-                            if let Some(d) = scene.object_signed_distance(o, &p) {
-                                worst = worst.max(-d);
-                            }
-                        }
+            for p in pick_gripper_points(&gripper, pick, 7) {
+                for o in 0..scene.object_count() {
+                    if let Some(d) = scene.object_signed_distance(o, &p) {
+                        worst = worst.max(-d);
                     }
                 }
             }

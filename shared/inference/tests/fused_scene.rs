@@ -1,10 +1,10 @@
 //! The analytic backend on a grid fused from the rendered depth of a procedural scene (a single
 //! top-down view), through selection, checked against the exact scene geometry.
 use nalgebra::Point3;
-use psgrasp_fusion::{fuse_normal_grid, FusionConfig};
-use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, GripperModel, Workspace};
-use psgrasp_inference::{AnalyticBackend, AnalyticConfig, ContactRegion, InferenceBackend};
-use psgrasp_selection::{select, SelectionConfig};
+use psgrasp_geometry::{BinModel, GripperModel, Workspace};
+use psgrasp_inference::InferenceBackend;
+use psgrasp_test_support::grasps::{analytic_backend_in_bin, pick_gripper_points, select_default};
+use psgrasp_test_support::scenes::fused_top_down;
 
 #[test]
 fn fused_procedural_scene_yields_collision_free_picks() {
@@ -12,23 +12,8 @@ fn fused_procedural_scene_yields_collision_free_picks() {
     let gripper = GripperModel::default();
     let scene = psgrasp_sim::procedural_scene(0, 8, &bin).unwrap();
     assert_eq!(scene.object_count(), 8);
-    let camera = CameraModel::top_down(
-        CameraIntrinsics::default_640x480(),
-        Point3::new(0.288, 0.288, 0.018 + 0.28 + 0.6),
-    );
-    let depth = scene.render_depth(&camera);
-    let grid = fuse_normal_grid(
-        &depth,
-        &camera,
-        &Workspace::default(),
-        &FusionConfig::default(),
-    )
-    .unwrap();
-    let cfg = AnalyticConfig {
-        contact_region: Some(ContactRegion::inside_bin(&bin, 0.005)),
-        ..AnalyticConfig::default()
-    };
-    let mut backend = AnalyticBackend::new(cfg, gripper).unwrap();
+    let grid = fused_top_down(&scene, &Workspace::default());
+    let mut backend = analytic_backend_in_bin(&bin, gripper);
     let configs = backend.infer(&grid.view(), 0).unwrap();
     let stats = backend.last_stats();
     // Before tilted side-face normals were straightened this scene gave no configuration at all.
@@ -37,14 +22,7 @@ fn fused_procedural_scene_yields_collision_free_picks() {
         "{} configurations: {stats:?}",
         configs.len()
     );
-    let sel = select(
-        &configs,
-        &grid.view(),
-        &bin,
-        &gripper,
-        &SelectionConfig::default(),
-    )
-    .unwrap();
+    let sel = select_default(&configs, &grid, &bin, &gripper);
     assert!(
         sel.picks.len() >= 5,
         "{} picks: {:?}",
@@ -60,25 +38,14 @@ fn fused_procedural_scene_yields_collision_free_picks() {
         holding += usize::from(inside_any(&tcp));
         // No sample of the gripper (grasp and pre-grasp poses) lies deeper than 5 mm inside an
         // object of the exact scene.
-        for pose in [pick.workspace_from_gripper, pick.pregrasp] {
-            for b in gripper.boxes(&pose, pick.opening_m) {
-                for i in 0..7 * 7 * 7 {
-                    let f = |v: usize| v as f32 / 3.0 - 1.0;
-                    let local = Point3::new(
-                        f(i % 7) * b.half_extents.x,
-                        f((i / 7) % 7) * b.half_extents.y,
-                        f(i / 49) * b.half_extents.z,
-                    );
-                    let p = b.parent_from_box * local;
-                    for o in 0..scene.object_count() {
-                        let d = scene.object_signed_distance(o, &p).unwrap();
-                        assert!(
-                            d > -0.005,
-                            "gripper point {p:?} is {} m inside object {o}",
-                            -d
-                        );
-                    }
-                }
+        for p in pick_gripper_points(&gripper, pick, 7) {
+            for o in 0..scene.object_count() {
+                let d = scene.object_signed_distance(o, &p).unwrap();
+                assert!(
+                    d > -0.005,
+                    "gripper point {p:?} is {} m inside object {o}",
+                    -d
+                );
             }
         }
     }

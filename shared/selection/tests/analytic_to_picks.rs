@@ -65,23 +65,12 @@ fn picks_from_the_analytic_backend_hold_an_object_and_clear_the_scene() {
         let tcp = Point3::from(pick.workspace_from_gripper.translation.vector);
         assert!(sd(&tcp) < 0.0, "TCP {tcp:?} is not inside an object");
         // No point of the gripper (grasp and pre-grasp) is deeper than 2 mm inside the exact scene.
-        for pose in [pick.workspace_from_gripper, pick.pregrasp] {
-            for b in gripper.boxes(&pose, pick.opening_m) {
-                for i in 0..5 * 5 * 5 {
-                    let f = |v: usize| v as f32 / 2.0 - 1.0;
-                    let local = Point3::new(
-                        f(i % 5) * b.half_extents.x,
-                        f((i / 5) % 5) * b.half_extents.y,
-                        f(i / 25) * b.half_extents.z,
-                    );
-                    let p = b.parent_from_box * local;
-                    assert!(
-                        sd(&p) > -0.002,
-                        "gripper point {p:?} is {} m inside the scene",
-                        -sd(&p)
-                    );
-                }
-            }
+        for p in psgrasp_test_support::grasps::pick_gripper_points(&gripper, pick, 5) {
+            assert!(
+                sd(&p) > -0.002,
+                "gripper point {p:?} is {} m inside the scene",
+                -sd(&p)
+            );
         }
         let down = -(pick.workspace_from_gripper.rotation * Vector3::z()).z;
         assert!(down >= 60f32.to_radians().cos() - 1e-5);

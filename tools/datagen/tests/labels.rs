@@ -1,5 +1,5 @@
 //! Label generation checked against analytic scenes and by independent re-checks.
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Point3, Vector3};
 use psgrasp_datagen::labels::{check_pose, PoseCheck};
 use psgrasp_datagen::verify::{
     contact_surface_error, gripper_hits_scene_sampled, recompute_quality,
@@ -9,27 +9,15 @@ use psgrasp_datagen::{
 };
 use psgrasp_geometry::{BinModel, CameraIntrinsics, GripperModel, Workspace, N_APPROACHES};
 use psgrasp_sim::{
-    default_camera, procedural_scene, ObjectKind, ObjectSpec, Part, Primitive, Scene,
-    SceneDescription, SceneObject,
+    default_camera, procedural_scene, ObjectKind, Primitive, Scene, SceneDescription,
 };
+use psgrasp_test_support::scenes::{on_floor, single_part};
 use rand::{Rng, SeedableRng};
 
 fn single_object_scene(primitive: Primitive, half_height: f32) -> Scene {
     let bin = BinModel::default();
-    let spec = ObjectSpec {
-        name: "single".into(),
-        kind: ObjectKind::Box,
-        parts: vec![Part {
-            object_from_part: Isometry3::identity(),
-            primitive,
-        }],
-    };
-    let c = bin.floor_center;
-    let pose = Isometry3::translation(c.x, c.y, c.z + half_height);
-    let objects = vec![SceneObject {
-        spec,
-        workspace_from_object: pose,
-    }];
+    let spec = single_part("single", ObjectKind::Box, primitive);
+    let objects = vec![on_floor(&bin, spec, [0.0, 0.0], half_height)];
     Scene::new(SceneDescription { bin, objects }).unwrap()
 }
 

@@ -1,25 +1,19 @@
 //! `cargo bench -p psgrasp-eval`: milliseconds per grasp attempt (physics only) on a lone box and
 //! in settled clutter, and seconds per clearing round with the analytic detector.
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Point3, Vector3};
 use psgrasp_datagen::Difficulty;
 use psgrasp_eval::{
     execute_grasp, run_scene_with, DetectorSpec, ExecutionConfig, GraspCommand, ProtocolConfig,
 };
 use psgrasp_geometry::{BinModel, GripperModel};
-use psgrasp_sim::{
-    MeshLibrary, ObjectKind, ObjectLibrary, ObjectSpec, Part, Primitive, Scene, SceneDescription,
-    SceneObject,
-};
+use psgrasp_sim::{MeshLibrary, ObjectLibrary, Scene};
+use psgrasp_test_support::grasps::top_down_pose;
+use psgrasp_test_support::scenes::boxes_on_floor;
 use std::time::Instant;
 
 fn top_down_at(p: Vector3<f32>, opening_m: f32) -> GraspCommand {
-    let (x, z) = (Vector3::x(), -Vector3::z());
-    let r = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, z.cross(&x), z]));
     GraspCommand {
-        workspace_from_gripper: Isometry3::from_parts(
-            Translation3::from(p),
-            UnitQuaternion::from_rotation_matrix(&r),
-        ),
+        workspace_from_gripper: top_down_pose(Point3::from(p)),
         opening_m,
     }
 }
@@ -56,23 +50,7 @@ fn main() {
     println!("|---|---|---|---|---|---|");
     let bin = BinModel::default();
     let c = bin.floor_center;
-    let lone = Scene::new(SceneDescription {
-        bin,
-        objects: vec![SceneObject {
-            spec: ObjectSpec {
-                name: "box".into(),
-                kind: ObjectKind::Box,
-                parts: vec![Part {
-                    object_from_part: Isometry3::identity(),
-                    primitive: Primitive::Cuboid {
-                        half_extents: [0.02, 0.03, 0.025],
-                    },
-                }],
-            },
-            workspace_from_object: Isometry3::translation(c.x, c.y, c.z + 0.025),
-        }],
-    })
-    .expect("scene");
+    let lone = boxes_on_floor(&[([0.02, 0.03, 0.025], [0.0, 0.0])]);
     time_attempts(
         "1 box, successful grasp",
         &lone,

@@ -1,45 +1,10 @@
 //! Grasp execution on single analytic objects with known answers.
-use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Point3, Vector3};
 use psgrasp_eval::{execute_grasp, ExecutionConfig, GraspCommand, GraspOutcome, HandPart};
 use psgrasp_geometry::{BinModel, GripperModel};
-use psgrasp_sim::{
-    MeshLibrary, ObjectKind, ObjectSpec, Part, Primitive, Scene, SceneDescription, SceneObject,
-};
-
-fn cuboid(half: [f32; 3]) -> ObjectSpec {
-    ObjectSpec {
-        name: "box".into(),
-        kind: ObjectKind::Box,
-        parts: vec![Part {
-            object_from_part: Isometry3::identity(),
-            primitive: Primitive::Cuboid { half_extents: half },
-        }],
-    }
-}
-
-/// Boxes resting on the bin floor, centred at the given xy offsets from the floor centre.
-fn boxes_on_floor(items: &[([f32; 3], [f32; 2])]) -> Scene {
-    let bin = BinModel::default();
-    let c = bin.floor_center;
-    let objects = items
-        .iter()
-        .map(|(half, [dx, dy])| SceneObject {
-            spec: cuboid(*half),
-            workspace_from_object: Isometry3::translation(c.x + dx, c.y + dy, c.z + half[2]),
-        })
-        .collect();
-    Scene::new(SceneDescription { bin, objects }).unwrap()
-}
-
-/// Gripper pose with baseline `x`, approach `z`, TCP at `tcp`.
-fn pose(tcp: Point3<f32>, x: Vector3<f32>, z: Vector3<f32>) -> Isometry3<f32> {
-    let y = z.cross(&x);
-    let r = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
-    Isometry3::from_parts(
-        Translation3::from(tcp.coords),
-        UnitQuaternion::from_rotation_matrix(&r),
-    )
-}
+use psgrasp_sim::{MeshLibrary, Scene};
+use psgrasp_test_support::grasps::gripper_pose as pose;
+use psgrasp_test_support::scenes::boxes_on_floor;
 
 /// Straight-down grasp across x at the object's centre height.
 fn top_down(scene: &Scene, object: usize, opening_m: f32) -> GraspCommand {

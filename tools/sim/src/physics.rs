@@ -1,4 +1,6 @@
-//! Dropping objects into the bin and letting them settle, with rapier3d.
+//! Dropping objects into the bin and letting them settle, with rapier3d, and the building blocks
+//! that grasp execution (`psgrasp-eval`) sets up its world with: [`physics_world`], [`insert_bin`],
+//! [`insert_object`], [`body_at_rest`], [`step_until_rest`] and [`pose_in_bin`].
 use crate::convert::{pose_from_glam, pose_to_glam, vec_to_glam};
 use crate::mesh::MeshLibrary;
 use crate::objects::{bounding_radius, ObjectSpec};
@@ -9,7 +11,8 @@ use psgrasp_geometry::BinModel;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rapier3d::prelude::{
-    ColliderBuilder, PhysicsWorld, RigidBodyBuilder, RigidBodyHandle, SharedShape,
+    ColliderBuilder, InteractionGroups, PhysicsWorld, RigidBody, RigidBodyBuilder, RigidBodyHandle,
+    SharedShape,
 };
 use serde::{Deserialize, Serialize};
 
@@ -93,32 +96,10 @@ pub fn drop_and_settle(
             reason: "settle dt_s must be > 0 and max_time_s >= 0",
         });
     }
-    let mut world = PhysicsWorld::new();
-    world.gravity = vec_to_glam(&Vector3::new(0.0, 0.0, -9.81));
-    world.integration_parameters.dt = config.dt_s;
+    let mut world = physics_world(config.dt_s);
 
     // The bin, padded outward so that fast objects cannot tunnel through its thin walls.
-    let pad = config.wall_padding_m.max(0.0);
-    let outward = [
-        Vector3::new(0.0, 0.0, -1.0),
-        -Vector3::x(),
-        Vector3::x(),
-        -Vector3::y(),
-        Vector3::y(),
-    ];
-    for (b, dir) in bin.boxes().iter().zip(outward) {
-        let half = b.half_extents + dir.abs() * (0.5 * pad);
-        let centre = b.parent_from_box.translation.vector + dir * (0.5 * pad);
-        let collider = ColliderBuilder::new(SharedShape::cuboid(half.x, half.y, half.z))
-            .position(pose_to_glam(&Isometry3::from_parts(
-                Translation3::from(centre),
-                UnitQuaternion::identity(),
-            )))
-            .friction(config.friction)
-            .restitution(config.restitution)
-            .build();
-        world.insert_collider(collider, None);
-    }
+    insert_bin(&mut world, bin, config, ColliderTags::default());
 
     // Spawn poses: random xy over the bin footprint, stacked in z without overlap.
     let c = bin.floor_center;
@@ -152,57 +133,29 @@ pub fn drop_and_settle(
         let pos = Vector3::new(x, y, z);
         placed.push((pos, r));
         let rot = random_rotation(rng);
-        let body = RigidBodyBuilder::dynamic()
-            .pose(pose_to_glam(&Isometry3::from_parts(
-                Translation3::from(pos),
-                rot,
-            )))
-            .ccd_enabled(true)
-            .linear_damping(config.linear_damping.max(0.0))
-            .angular_damping(config.angular_damping.max(0.0))
-            .build();
-        let handle = world.insert_body(body);
-        let collider = ColliderBuilder::new(shape)
-            .friction(config.friction)
-            .restitution(config.restitution)
-            .density(config.density)
-            .build();
-        world.insert_collider(collider, Some(handle));
+        let pose = Isometry3::from_parts(Translation3::from(pos), rot);
+        let handle = insert_object(
+            &mut world,
+            shape,
+            &pose,
+            config,
+            true,
+            ColliderTags::default(),
+        );
         handles.push(handle);
     }
 
     let max_steps = (config.max_time_s / config.dt_s).ceil() as usize;
-    let mut steps = 0;
-    let mut at_rest = handles.is_empty();
-    while steps < max_steps && !at_rest {
-        world.step();
-        steps += 1;
-        if steps.is_multiple_of(10) {
-            at_rest = handles.iter().all(|h| {
-                world.bodies.get(*h).is_none_or(|b| {
-                    b.is_sleeping()
-                        || (b.linvel().length() < config.rest_linear_speed
-                            && b.angvel().length() < config.rest_angular_speed)
-                })
-            });
-        }
-    }
+    // Freshly spawned bodies do not move yet: the first rest test comes after 10 steps.
+    let (steps, at_rest) = step_until_rest(&mut world, max_steps, 10, handles.is_empty(), |w| {
+        handles
+            .iter()
+            .all(|h| w.bodies.get(*h).is_none_or(|b| body_at_rest(b, config)))
+    });
 
     let mut out = Vec::new();
     for (spec, h) in objects.iter().zip(&handles) {
-        let Some(body) = world.bodies.get(*h) else {
-            continue;
-        };
-        let pose = pose_from_glam(body.position());
-        if !pose.translation.vector.iter().all(|v| v.is_finite()) {
-            continue;
-        }
-        let p = pose.translation.vector;
-        let inside = (p.x - c.x).abs() <= 0.5 * lx
-            && (p.y - c.y).abs() <= 0.5 * ly
-            && p.z >= c.z - 0.01
-            && p.z <= bin.rim_z() + 0.05;
-        if inside {
+        if let Some(pose) = pose_in_bin(&world, *h, bin) {
             out.push(SceneObject {
                 spec: spec.clone(),
                 workspace_from_object: pose,
@@ -222,6 +175,149 @@ pub fn drop_and_settle(
         },
         report,
     ))
+}
+
+/// A physics world with gravity (−9.81 m/s² along workspace z) and time step `dt_s`; every
+/// other integration parameter is rapier's default.
+pub fn physics_world(dt_s: f32) -> PhysicsWorld {
+    let mut world = PhysicsWorld::new();
+    world.gravity = vec_to_glam(&Vector3::new(0.0, 0.0, -9.81));
+    world.integration_parameters.dt = dt_s;
+    world
+}
+
+/// Collision groups and user data given to the colliders (and bodies) that [`insert_bin`] and
+/// [`insert_object`] create. The default is rapier's: every group, user data 0.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ColliderTags {
+    /// Collision groups of the colliders.
+    pub groups: InteractionGroups,
+    /// `user_data` of the colliders and of an object's rigid body.
+    pub user_data: u128,
+}
+
+impl Default for ColliderTags {
+    fn default() -> Self {
+        Self {
+            groups: InteractionGroups::all(),
+            user_data: 0,
+        }
+    }
+}
+
+/// Inserts the bin's five boxes (floor and four walls) as fixed colliders with `material`'s
+/// friction and restitution. The floor and walls are padded outward by
+/// [`SettleConfig::wall_padding_m`] (the inner faces stay where they are) so that fast objects
+/// cannot tunnel through them.
+pub fn insert_bin(
+    world: &mut PhysicsWorld,
+    bin: &BinModel,
+    material: &SettleConfig,
+    tags: ColliderTags,
+) {
+    let pad = material.wall_padding_m.max(0.0);
+    let outward = [
+        Vector3::new(0.0, 0.0, -1.0),
+        -Vector3::x(),
+        Vector3::x(),
+        -Vector3::y(),
+        Vector3::y(),
+    ];
+    for (b, dir) in bin.boxes().iter().zip(outward) {
+        let half = b.half_extents + dir.abs() * (0.5 * pad);
+        let centre = b.parent_from_box.translation.vector + dir * (0.5 * pad);
+        let collider = ColliderBuilder::new(SharedShape::cuboid(half.x, half.y, half.z))
+            .position(pose_to_glam(&Isometry3::from_parts(
+                Translation3::from(centre),
+                UnitQuaternion::identity(),
+            )))
+            .friction(material.friction)
+            .restitution(material.restitution)
+            .collision_groups(tags.groups)
+            .user_data(tags.user_data)
+            .build();
+        world.insert_collider(collider, None);
+    }
+}
+
+/// Inserts one object: a dynamic body at `pose` with `material`'s damping (continuous collision
+/// detection if `ccd`) and a collider of `shape` with its friction, restitution and density.
+pub fn insert_object(
+    world: &mut PhysicsWorld,
+    shape: SharedShape,
+    pose: &Isometry3<f32>,
+    material: &SettleConfig,
+    ccd: bool,
+    tags: ColliderTags,
+) -> RigidBodyHandle {
+    let body = RigidBodyBuilder::dynamic()
+        .pose(pose_to_glam(pose))
+        .ccd_enabled(ccd)
+        .linear_damping(material.linear_damping.max(0.0))
+        .angular_damping(material.angular_damping.max(0.0))
+        .user_data(tags.user_data)
+        .build();
+    let handle = world.insert_body(body);
+    let collider = ColliderBuilder::new(shape)
+        .friction(material.friction)
+        .restitution(material.restitution)
+        .density(material.density)
+        .collision_groups(tags.groups)
+        .user_data(tags.user_data)
+        .build();
+    world.insert_collider(collider, Some(handle));
+    handle
+}
+
+/// True if `body` sleeps or moves slower than [`SettleConfig::rest_linear_speed`] and
+/// [`SettleConfig::rest_angular_speed`].
+pub fn body_at_rest(body: &RigidBody, material: &SettleConfig) -> bool {
+    body.is_sleeping()
+        || (body.linvel().length() < material.rest_linear_speed
+            && body.angvel().length() < material.rest_angular_speed)
+}
+
+/// Steps `world` until `at_rest` holds or `max_steps` steps are done; `at_rest` is tested after
+/// every `check_every` steps, and `initially_at_rest` stands for it before the first step.
+/// Returns the steps taken and whether it ended at rest.
+pub fn step_until_rest(
+    world: &mut PhysicsWorld,
+    max_steps: usize,
+    check_every: usize,
+    initially_at_rest: bool,
+    at_rest: impl Fn(&PhysicsWorld) -> bool,
+) -> (usize, bool) {
+    let mut steps = 0;
+    let mut rest = initially_at_rest;
+    while !rest && steps < max_steps {
+        world.step();
+        steps += 1;
+        if steps.is_multiple_of(check_every) {
+            rest = at_rest(world);
+        }
+    }
+    (steps, rest)
+}
+
+/// The pose of `body` if it is still in the world, finite and inside `bin`: within the inner
+/// footprint, at most 1 cm below the floor and 5 cm above the rim.
+pub fn pose_in_bin(
+    world: &PhysicsWorld,
+    body: RigidBodyHandle,
+    bin: &BinModel,
+) -> Option<Isometry3<f32>> {
+    let pose = pose_from_glam(world.bodies.get(body)?.position());
+    let p = pose.translation.vector;
+    if !p.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let c = bin.floor_center;
+    let [lx, ly, _] = bin.inner_size_m;
+    let inside = (p.x - c.x).abs() <= 0.5 * lx
+        && (p.y - c.y).abs() <= 0.5 * ly
+        && p.z >= c.z - 0.01
+        && p.z <= bin.rim_z() + 0.05;
+    inside.then_some(pose)
 }
 
 /// A uniformly distributed random rotation (Shoemake's method).

@@ -2,3 +2,7 @@
 //! scene → depth → grid scaffolding from another. A dev-dependency only: no pipeline or tool
 //! crate depends on it.
 #![warn(missing_docs)]
+
+pub mod analytic;
+pub mod grasps;
+pub mod scenes;

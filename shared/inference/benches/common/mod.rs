@@ -1,7 +1,6 @@
 //! Helpers shared by the model benches (`learned.rs`, `vgn.rs`).
-use nalgebra::Point3;
-use psgrasp_fusion::{fuse_normal_grid, FusionConfig, NormalGrid};
-use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel, Workspace};
+use psgrasp_fusion::NormalGrid;
+use psgrasp_geometry::{BinModel, Workspace};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -9,12 +8,7 @@ use std::time::Duration;
 pub fn fused_grid(workspace: Workspace) -> NormalGrid {
     let bin = BinModel::default();
     let scene = psgrasp_sim::procedural_scene(3, 12, &bin).expect("procedural scene");
-    let camera = CameraModel::top_down(
-        CameraIntrinsics::default_640x480(),
-        Point3::new(0.288, 0.288, 0.018 + 0.28 + 0.6),
-    );
-    let depth = scene.render_depth(&camera);
-    fuse_normal_grid(&depth, &camera, &workspace, &FusionConfig::default()).expect("fusion")
+    psgrasp_test_support::scenes::fused_top_down(&scene, &workspace)
 }
 
 /// An unsigned integer from the environment, else `default`.

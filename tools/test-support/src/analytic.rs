@@ -1,5 +1,6 @@
-//! A tiny analytic ray caster and ground-truth nearest-surface queries for the fusion tests.
-#![allow(dead_code)]
+//! A tiny analytic ray caster and ground-truth nearest-surface queries (planes, spheres, boxes):
+//! depth images of exactly known scenes and the accuracy of a fused [`NormalGrid`] against them.
+//! Used by fusion's tests and benchmark.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use psgrasp_fusion::NormalGrid;
@@ -9,18 +10,36 @@ use psgrasp_geometry::{CameraIntrinsics, CameraModel, DepthImage, Workspace};
 #[derive(Debug, Clone, Copy)]
 pub enum Shape {
     /// Points with `n · p = d` (solid below, i.e. on the −n side).
-    Plane { n: Vector3<f32>, d: f32 },
+    Plane {
+        /// Unit normal.
+        n: Vector3<f32>,
+        /// Offset along the normal, metres.
+        d: f32,
+    },
     /// A solid ball.
-    Sphere { c: Point3<f32>, r: f32 },
+    Sphere {
+        /// Centre.
+        c: Point3<f32>,
+        /// Radius, metres.
+        r: f32,
+    },
     /// An axis-aligned solid box.
-    Cuboid { min: Point3<f32>, max: Point3<f32> },
+    Cuboid {
+        /// Lowest corner.
+        min: Point3<f32>,
+        /// Highest corner.
+        max: Point3<f32>,
+    },
 }
 
 /// The nearest surface point of a shape to a query point.
 #[derive(Debug, Clone, Copy)]
 pub struct Nearest {
+    /// The surface point.
     pub point: Point3<f32>,
+    /// The outward surface normal there.
     pub normal: Vector3<f32>,
+    /// Distance from the query point, metres.
     pub distance: f32,
     /// The nearest point lies on (or within the margin of) an edge/corner, or two faces tie.
     pub ambiguous: bool,
@@ -174,6 +193,7 @@ fn near_edge(
 /// A scene of analytic shapes.
 #[derive(Debug, Clone, Default)]
 pub struct Scene {
+    /// The shapes (a union of solids).
     pub shapes: Vec<Shape>,
 }
 
@@ -285,8 +305,10 @@ pub fn look_at(
     }
 }
 
+/// Height of the [`floor`] plane, metres.
 pub const FLOOR_Z: f32 = 0.1;
 
+/// The workspace of the analytic scenes: [`Workspace::default`].
 pub fn workspace() -> Workspace {
     Workspace::default()
 }
@@ -311,6 +333,7 @@ pub fn side_camera() -> CameraModel {
     )
 }
 
+/// The floor plane at [`FLOOR_Z`].
 pub fn floor() -> Shape {
     Shape::Plane {
         n: Vector3::z(),
@@ -318,6 +341,7 @@ pub fn floor() -> Shape {
     }
 }
 
+/// A ball of radius 8 cm resting on the floor.
 pub fn sphere() -> Shape {
     Shape::Sphere {
         c: Point3::new(0.38, 0.34, FLOOR_Z + 0.08),
@@ -325,6 +349,7 @@ pub fn sphere() -> Shape {
     }
 }
 
+/// An 18 × 18 × 11 cm box standing on the floor.
 pub fn cuboid() -> Shape {
     Shape::Cuboid {
         min: Point3::new(0.08, 0.10, FLOOR_Z),
@@ -348,9 +373,12 @@ pub struct NormalReport {
 }
 
 impl NormalReport {
+    /// Fraction of the evaluated voxels within 5° of the truth.
     pub fn fraction_within(&self) -> f32 {
         self.within_5deg as f32 / self.evaluated.max(1) as f32
     }
+
+    /// The `q` quantile (0–1) of the angular errors, degrees (NaN without any).
     pub fn percentile(&self, q: f32) -> f32 {
         if self.errors.is_empty() {
             return f32::NAN;
@@ -482,6 +510,7 @@ pub fn zero_crossing_errors(
     (count, missing, max, sum / (count - missing).max(1) as f32)
 }
 
+/// Angle between `a` and `b`, degrees.
 pub fn angle_deg(a: &Vector3<f32>, b: &Vector3<f32>) -> f32 {
     (a.dot(b) / (a.norm() * b.norm()))
         .clamp(-1.0, 1.0)

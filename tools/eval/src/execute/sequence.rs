@@ -1,0 +1,179 @@
+//! [`execute_grasp`]: pre-grasp check, approach, close, lift and hold, judge, settle.
+use super::hand::{
+    finger_speeds, fingers_touch, first_touch, hand_opening, insert_hand, move_palm,
+};
+use super::world::{collect_scene, execution_world, insert_scene, settle};
+use super::{
+    pregrasp_collides, pregrasp_pose, validate_command, ApproachTouch, Execution, ExecutionConfig,
+    ExecutionReport, GraspCommand, GraspOutcome,
+};
+use crate::EvalError;
+use nalgebra::{Isometry3, Translation3, Vector3};
+use psgrasp_geometry::GripperModel;
+use psgrasp_sim::{MeshLibrary, Scene};
+use rapier3d::prelude::{JointAxis, MotorModel};
+
+/// Executes one grasp on `scene` (see the module docs). `meshes` must hold the meshes the scene's
+/// objects reference. Deterministic.
+pub fn execute_grasp(
+    scene: &Scene,
+    meshes: &MeshLibrary,
+    gripper: &GripperModel,
+    command: &GraspCommand,
+    cfg: &ExecutionConfig,
+) -> Result<Execution, EvalError> {
+    cfg.validate()?;
+    validate_command(command, gripper)?;
+    let opening = command.opening_m.min(gripper.max_opening_m);
+    if pregrasp_collides(scene, gripper, command, cfg) {
+        return Ok(Execution {
+            report: ExecutionReport {
+                outcome: GraspOutcome::PregraspCollision,
+                removed_object: None,
+                lifted_objects: Vec::new(),
+                lost_objects: Vec::new(),
+                final_opening_m: opening,
+                steps: 0,
+                settled: true,
+                approach_touch: None,
+            },
+            scene_after: scene.description().clone(),
+        });
+    }
+    let pregrasp = pregrasp_pose(command, cfg.pregrasp_distance_m);
+
+    let desc = scene.description();
+    let mut world = execution_world(cfg);
+    let objects = insert_scene(&mut world, desc, meshes, cfg)?;
+    let hand = insert_hand(&mut world, gripper, &pregrasp, opening, cfg);
+    let mut steps = 0usize;
+
+    // Approach.
+    let distance = cfg.pregrasp_distance_m;
+    let n_approach = ((distance / (cfg.approach_speed_m_s * cfg.dt_s)).ceil() as usize).max(1);
+    let mut touch = None;
+    // Where the palm is when the approach ends (the grasp pose unless a touch stopped it).
+    let mut reached = command.workspace_from_gripper;
+    for s in 1..=n_approach {
+        let t = s as f32 / n_approach as f32;
+        let short = distance * (1.0 - t);
+        let pose = pregrasp_pose(command, short);
+        move_palm(&mut world, &hand, &pose);
+        world.step();
+        steps += 1;
+        if cfg.abort_on_approach_contact {
+            if let Some((part, object)) = first_touch(&world, &hand, cfg.touch_distance_m) {
+                touch = Some(ApproachTouch {
+                    part,
+                    object,
+                    short_of_grasp_m: short,
+                });
+                reached = pose;
+                break;
+            }
+        }
+    }
+
+    let mut outcome = GraspOutcome::ApproachContact;
+    let mut lifted = Vec::new();
+    let mut final_opening = opening;
+    if touch.is_none() || cfg.close_after_approach_contact {
+        // Close.
+        for j in hand.joints {
+            if let Some(joint) = world.impulse_joints.get_mut(j, true) {
+                // Force-based velocity motor, gain high enough that a blocked finger pushes
+                // with the full force limit (an acceleration-based gain scales with the light
+                // finger's mass and squeezes with almost nothing).
+                let gain = 20.0 * cfg.finger_force_n / cfg.close_speed_m_s;
+                joint
+                    .data
+                    .set_motor_model(JointAxis::LinX, MotorModel::ForceBased)
+                    .set_motor_velocity(JointAxis::LinX, -cfg.close_speed_m_s, gain)
+                    .set_motor_max_force(JointAxis::LinX, cfg.finger_force_n);
+            }
+        }
+        let max_close = (cfg.max_close_time_s / cfg.dt_s).ceil() as usize;
+        let stopped_needed = (cfg.finger_stopped_time_s / cfg.dt_s).ceil() as usize;
+        let mut stopped = 0usize;
+        for _ in 0..max_close {
+            world.step();
+            steps += 1;
+            let speed = finger_speeds(&world, &hand);
+            if speed < cfg.finger_stopped_speed_m_s {
+                stopped += 1;
+                if stopped > stopped_needed {
+                    break;
+                }
+            } else {
+                stopped = 0;
+            }
+        }
+        // Lift and hold.
+        let start_z: Vec<f32> = objects
+            .iter()
+            .map(|h| world.bodies.get(*h).map_or(0.0, |b| b.translation().z))
+            .collect();
+        let n_lift = ((cfg.lift_height_m / (cfg.lift_speed_m_s * cfg.dt_s)).ceil() as usize).max(1);
+        for s in 1..=n_lift {
+            let dz = cfg.lift_height_m * s as f32 / n_lift as f32;
+            let pose = Isometry3::from_parts(
+                Translation3::from(reached.translation.vector + Vector3::z() * dz),
+                reached.rotation,
+            );
+            move_palm(&mut world, &hand, &pose);
+            world.step();
+            steps += 1;
+        }
+        let n_hold = (cfg.hold_time_s / cfg.dt_s).ceil() as usize;
+        for _ in 0..n_hold {
+            world.step();
+            steps += 1;
+        }
+        final_opening = hand_opening(&world, &hand);
+        lifted = objects
+            .iter()
+            .enumerate()
+            .filter(|(i, h)| {
+                world.bodies.get(**h).is_some_and(|b| {
+                    b.translation().z - start_z[*i] > cfg.lifted_fraction * cfg.lift_height_m
+                })
+            })
+            .map(|(i, _)| i)
+            .collect::<Vec<_>>();
+        let touching = fingers_touch(&world, &hand, cfg.touch_distance_m.max(0.002));
+        outcome = match lifted.as_slice() {
+            [] => GraspOutcome::NothingHeld,
+            [i] if touching.contains(i) && final_opening > cfg.min_opening_m => {
+                GraspOutcome::Success
+            }
+            [_] => GraspOutcome::NothingHeld,
+            _ => GraspOutcome::DoubleGrasp,
+        };
+    }
+
+    // Remove the hand (and the held object), let the rest settle.
+    for b in [hand.palm, hand.fingers[0], hand.fingers[1]] {
+        world.remove_body(b);
+    }
+    let removed_object = (outcome == GraspOutcome::Success).then(|| lifted[0]);
+    if let Some(i) = removed_object {
+        world.remove_body(objects[i]);
+    }
+    let (settle_steps, settled) = settle(&mut world, &objects, removed_object, cfg);
+    steps += settle_steps;
+
+    let (scene_after, lost_objects) = collect_scene(&world, desc, &objects, removed_object);
+    Ok(Execution {
+        report: ExecutionReport {
+            outcome,
+            removed_object,
+            lifted_objects: lifted,
+            lost_objects,
+            final_opening_m: final_opening,
+            steps,
+            settled,
+            approach_touch: touch,
+        },
+        scene_after,
+    })
+}
