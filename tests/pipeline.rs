@@ -305,3 +305,62 @@ fn malformed_config_is_refused_with_a_clear_message() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("malformed config"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `psgrasp eval` and `psgrasp detect` run the perception chain in one process
+/// (`Perception::detect`); the pipeline runs the same steps one per process. One frame through
+/// both must give the same picks, bit for bit: for the shipped model and the analytic backend
+/// (whose contacts are kept inside the bin by the cell's `perception.contact_region_inset_m`).
+#[test]
+fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
+    for kind in ["learned", "analytic"] {
+        let mut cfg = shipped_config(&format!("same-{kind}"));
+        if kind == "analytic" {
+            cfg.cell.inference = BackendConfig::Analytic(Default::default());
+        }
+        cfg.camera.synthetic.objects = 8;
+        cfg.pipeline.seed = 11;
+        let dir = std::env::temp_dir().join(format!("psgrasp-same-{kind}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let depth = psgrasp::sources::SyntheticSource::new(&cfg)
+            .render(0)
+            .unwrap();
+        save_depth_npy(&dir.join("0.npy"), &depth).unwrap();
+        let cam = cfg.camera_model();
+        let q = cam.workspace_from_camera.rotation.coords;
+        let t = cam.workspace_from_camera.translation.vector;
+        cfg.camera.source = SourceKind::Replay;
+        cfg.camera.replay.path = dir.clone();
+        cfg.camera.pose = Some(PoseConfig {
+            translation: [t.x, t.y, t.z],
+            rotation_xyzw: [q[0], q[1], q[2], q[3]],
+        });
+        cfg.camera.frames = 1;
+        cfg.pipeline.channel.drop_policy = DropPolicy::Block;
+        cfg.pipeline.channel.block_timeout_ms = 120_000;
+        cfg.pipeline.loss_timeout_ms = 120_000;
+        let (report, mut sup) = run_frames(&cfg, 1, Duration::from_secs(240), &bin_dir()).unwrap();
+        sup.shutdown(Duration::from_secs(3));
+        std::fs::remove_dir_all(&dir).ok();
+        let outcome = report.outcomes.values().next().expect("one outcome");
+        assert_eq!(outcome.status(), StatusCode::Ok, "{}", outcome.header.error_text());
+
+        // The same frame in one process, with the camera as the frame header carries it.
+        let header = psgrasp_ipc::FrameHeader::new(
+            psgrasp_ipc::MessageKind::DepthFrame,
+            1,
+            0,
+            &cfg.camera_model(),
+            &cfg.cell.workspace,
+            0,
+        );
+        let mut chain = psgrasp_perception::Perception::new(&cfg.cell).unwrap();
+        let detection = chain.detect(&depth, &header.camera(), cfg.pipeline.seed).unwrap();
+        let in_process = psgrasp::grasp_selection::pick_records(
+            &detection.selection,
+            &detection.configurations,
+            cfg.cell.selection.top_k,
+        );
+        assert!(!in_process.is_empty(), "{kind}: the frame must have picks");
+        assert_eq!(outcome.picks, in_process, "{kind}: pipeline vs in-process chain");
+    }
+}

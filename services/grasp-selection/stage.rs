@@ -10,6 +10,7 @@ use psgrasp_ipc::{
     PickRecord, Stamp, StatusCode, TrackerEvent,
 };
 use psgrasp_perception::SelectionStep;
+use psgrasp_selection::Selection;
 use std::collections::BTreeMap;
 use std::time::Duration;
 
@@ -49,26 +50,36 @@ impl GraspSelection<'_> {
             .step
             .select(configs, &view)
             .map_err(|e| StepFailure::new(StatusCode::SelectionFailed, e))?;
-        Ok(selection
-            .picks
-            .iter()
-            .take(self.max_picks)
-            .enumerate()
-            .map(|(rank, p)| {
-                PickRecord::new(
-                    &p.workspace_from_gripper,
-                    &p.pregrasp,
-                    &configs[p.configuration_index].contact,
-                    p.width,
-                    p.quality,
-                    p.collision_score,
-                    p.configuration_index as u32,
-                    p.approach_index as u32,
-                    rank as u32,
-                )
-            })
-            .collect())
+        Ok(pick_records(&selection, configs, self.max_picks))
     }
+}
+
+/// The pick records of `selection` (picks of `configs`), best first, at most `max`: what
+/// grasp-selection publishes on `picks`.
+pub fn pick_records(
+    selection: &Selection,
+    configs: &[GraspConfiguration],
+    max: usize,
+) -> Vec<PickRecord> {
+    selection
+        .picks
+        .iter()
+        .take(max)
+        .enumerate()
+        .map(|(rank, p)| {
+            PickRecord::new(
+                &p.workspace_from_gripper,
+                &p.pregrasp,
+                &configs[p.configuration_index].contact,
+                p.width,
+                p.quality,
+                p.collision_score,
+                p.configuration_index as u32,
+                p.approach_index as u32,
+                rank as u32,
+            )
+        })
+        .collect()
 }
 
 impl Stage for GraspSelection<'_> {
