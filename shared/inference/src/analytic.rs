@@ -39,9 +39,9 @@
 //! Configurations are returned sorted by quality (descending), at most
 //! [`AnalyticConfig::max_configurations`]; `κ = 0` (this backend does not model the baseline
 //! uncertainty). Same grid and seed → same output.
-use crate::occupancy::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
 use crate::{validate_grid, validate_gripper, InferenceBackend, InferenceError};
 use nalgebra::{Point3, Vector3};
+use psgrasp_collision::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
 use psgrasp_fusion::NormalGridView;
 use psgrasp_geometry::{
     antipodal_quality, approach_vectors, BinModel, ContactGrasp, GraspConfiguration, GripperModel,
@@ -276,7 +276,7 @@ impl AnalyticConfig {
         if let Some(r) = &c.contact_region {
             r.validate()?;
         }
-        c.occupancy.validate()
+        Ok(c.occupancy.validate()?)
     }
 }
 

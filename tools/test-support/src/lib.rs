@@ -2,3 +2,5 @@
 //! scene → depth → grid scaffolding from another. A dev-dependency only: no pipeline or tool
 //! crate depends on it.
 #![warn(missing_docs)]
+
+pub mod synthetic;
