@@ -23,10 +23,20 @@
 //! The VGN backend ([`VgnBackend`], `kind = "vgn"`) is the volumetric baseline of Breyer et al.
 //! (per-voxel quality, orientation and width from a fully convolutional network, retrained on
 //! psgrasp's data), run on the same runtimes with VGN's post-processing; see [`vgn`].
+//!
+//! Both model backends run their graphs on [`onnx`] (the runtimes: [`RuntimeKind`], the
+//! single-input graph engine, tract's thread pool, ONNX Runtime's sessions) and report model
+//! problems — card, files, graph interface, runtime — as a [`ModelError`].
+//!
+//! Modules: [`analytic`] (the backend and its settings), [`learned`] (model card, two-graph
+//! runtimes, feature sampling, decoding), [`vgn`] (card, post-processing), [`onnx`] (the graph
+//! runtimes both use).
 #![warn(missing_docs)]
 
 pub mod analytic;
 pub mod learned;
+mod model_error;
+pub mod onnx;
 pub mod vgn;
 
 pub use analytic::{AnalyticBackend, AnalyticConfig, AnalyticStats, ContactRegion};
