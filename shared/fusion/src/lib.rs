@@ -24,6 +24,7 @@ mod depth_scale;
 mod normals;
 mod plane;
 mod tsdf;
+mod validate;
 
 pub use config::FusionConfig;
 pub use depth_png::{load_depth_png, save_depth_png, DepthPngError};
@@ -32,6 +33,7 @@ pub use plane::{
     fit_support_plane, workspace_camera_from_plane, PlacementConfig, Plane, PlaneFitConfig,
 };
 pub use tsdf::{fuse_into, fuse_normal_grid, IntegrationStats, TsdfVolume};
+pub use validate::{GridError, TSDF_RANGE_TOLERANCE};
 
 use psgrasp_geometry::Workspace;
 

@@ -4,6 +4,7 @@
 //! x along the closing baseline, z along the approach (palm → object), y = z × x.
 //! The fingertips reach `tip_beyond_tcp_m` past the TCP; the finger bases (and the palm face)
 //! lie `finger_length_m − tip_beyond_tcp_m` behind it.
+use crate::GeometryError;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -78,6 +79,33 @@ impl OrientedBox {
 }
 
 impl GripperModel {
+    /// Checks that the box sizes and the maximum opening are positive and finite and that the
+    /// fingertips reach at most a finger length past the TCP
+    /// ([`GeometryError::InvalidGripper`] otherwise).
+    pub fn validate(&self) -> Result<(), GeometryError> {
+        let sizes = self
+            .finger_size_m
+            .iter()
+            .chain(self.palm_size_m.iter())
+            .chain(std::iter::once(&self.max_opening_m));
+        for &v in sizes {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(GeometryError::InvalidGripper(
+                    "sizes and max opening must be positive and finite",
+                ));
+            }
+        }
+        if !self.tip_beyond_tcp_m.is_finite()
+            || self.tip_beyond_tcp_m < 0.0
+            || self.tip_beyond_tcp_m > self.finger_size_m[2]
+        {
+            return Err(GeometryError::InvalidGripper(
+                "tip_beyond_tcp_m must lie in [0, finger length]",
+            ));
+        }
+        Ok(())
+    }
+
     /// Distance from the TCP back to the palm face (finger bases) along the approach.
     pub fn tcp_to_palm_m(&self) -> f32 {
         self.finger_size_m[2] - self.tip_beyond_tcp_m
@@ -176,5 +204,26 @@ mod tests {
         let gap = (r.parent_from_box.translation.x - r.half_extents.x)
             - (l.parent_from_box.translation.x + l.half_extents.x);
         assert!((gap - g.max_opening_m).abs() < 1e-6);
+    }
+
+    #[test]
+    fn validate_accepts_the_default_and_rejects_bad_sizes() {
+        assert_eq!(GripperModel::default().validate(), Ok(()));
+        let bad = GripperModel {
+            max_opening_m: -0.1,
+            ..GripperModel::default()
+        };
+        assert!(matches!(
+            bad.validate(),
+            Err(GeometryError::InvalidGripper(_))
+        ));
+        let tip = GripperModel {
+            tip_beyond_tcp_m: 1.0,
+            ..GripperModel::default()
+        };
+        assert!(matches!(
+            tip.validate(),
+            Err(GeometryError::InvalidGripper(_))
+        ));
     }
 }

@@ -35,4 +35,8 @@ pub enum GeometryError {
     /// A pose contains non-finite numbers.
     #[error("invalid pose: {0}")]
     InvalidPose(&'static str),
+    /// The gripper model is unusable (non-positive or non-finite sizes, fingertips beyond the
+    /// fingers); see [`GripperModel::validate`].
+    #[error("invalid gripper model: {0}")]
+    InvalidGripper(&'static str),
 }

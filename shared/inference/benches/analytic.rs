@@ -3,11 +3,11 @@
 //! Run: `cargo bench -p psgrasp-inference --bench analytic`. Prints one table; single-threaded.
 use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
 use psgrasp_geometry::{BinModel, GripperModel, Workspace};
-use psgrasp_inference::synthetic::{Primitive, SyntheticScene};
 use psgrasp_inference::{
     AnalyticBackend, AnalyticConfig, ContactRegion, InferenceBackend, OccupancyConfig,
     OccupancyGrid, SceneCollisionChecker,
 };
+use psgrasp_test_support::synthetic::{Primitive, SyntheticScene};
 use std::hint::black_box;
 use std::time::Instant;
 

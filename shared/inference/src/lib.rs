@@ -6,16 +6,15 @@
 //! Backends are built from a [`BackendConfig`] (TOML/JSON, tagged by `kind`) with
 //! [`backend_from_config`] or [`backend_for_workspace`].
 //!
-//! The crate also holds what backends and grasp selection share:
-//!
-//! - [`OccupancyGrid`] / [`SceneCollisionChecker`]: the observed scene as occupied voxels and a fast
-//!   test of the gripper boxes against them;
-//! - [`validate_grid`]: the input checks every backend runs first;
-//! - [`synthetic`]: exact normal grids of analytic scenes (boxes and cylinders on a floor) for tests,
-//!   benchmarks and demos that must not depend on the fusion implementation.
+//! Every backend first runs [`validate_grid`] (the grid's own [`NormalGridView::validate`] in
+//! `psgrasp-fusion`) and checks its gripper with [`validate_gripper`]
+//! ([`GripperModel::validate`] in `psgrasp-geometry`); their errors keep their own
+//! [`InferenceError`] variants.
 //!
 //! The analytic backend ([`AnalyticBackend`]) is the GPD-style geometric baseline: antipodal contact
-//! pairs found by casting rays through the TSDF, collision scores from the occupancy grid.
+//! pairs found by casting rays through the TSDF, collision scores from the occupancy of the
+//! observed scene ([`OccupancyGrid`] / [`SceneCollisionChecker`], re-exported from
+//! `psgrasp-collision`, which grasp selection uses too).
 //!
 //! The learned backend ([`LearnedBackend`], `kind = "learned"`) runs the paper's two-stage network
 //! exported to ONNX (a model directory with a checked model card) on tract or, with the cargo
@@ -24,31 +23,39 @@
 //! The VGN backend ([`VgnBackend`], `kind = "vgn"`) is the volumetric baseline of Breyer et al.
 //! (per-voxel quality, orientation and width from a fully convolutional network, retrained on
 //! psgrasp's data), run on the same runtimes with VGN's post-processing; see [`vgn`].
+//!
+//! Both model backends run their graphs on [`onnx`] (the runtimes: [`RuntimeKind`], the
+//! single-input graph engine, tract's thread pool, ONNX Runtime's sessions) and report model
+//! problems — card, files, graph interface, runtime — as a [`ModelError`].
+//!
+//! Modules: [`analytic`] (the backend and its settings), [`learned`] (model card, two-graph
+//! runtimes, feature sampling, decoding), [`vgn`] (card, post-processing), [`onnx`] (the graph
+//! runtimes both use).
 #![warn(missing_docs)]
 
 pub mod analytic;
 pub mod learned;
-pub mod occupancy;
-pub mod synthetic;
+mod model_error;
+pub mod onnx;
 pub mod vgn;
 
 pub use analytic::{AnalyticBackend, AnalyticConfig, AnalyticStats, ContactRegion};
 pub use learned::{
     LearnedBackend, LearnedConfig, LearnedModel, ModelCard, ModelError, RuntimeKind, StageTimings,
 };
-pub use occupancy::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
+pub use psgrasp_collision::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
+pub use psgrasp_fusion::TSDF_RANGE_TOLERANCE;
 pub use vgn::{VgnBackend, VgnCard, VgnConfig, VgnTimings};
 
-use psgrasp_fusion::NormalGridView;
+use psgrasp_collision::CollisionError;
+use psgrasp_fusion::{GridError, NormalGridView};
 use psgrasp_geometry::{BinModel, GeometryError, GraspConfiguration, GripperModel, Workspace};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// Largest |normalised TSDF| accepted by [`validate_grid`]; values are defined in [−1, 1] and this
-/// leaves room for rounding in producers.
-pub const TSDF_RANGE_TOLERANCE: f32 = 1e-3;
-
-/// Errors raised by inference backends and the occupancy grid.
+/// Errors raised by inference backends; the errors of the grid checks (`psgrasp-fusion`), the
+/// gripper check (`psgrasp-geometry`) and the occupancy grid (`psgrasp-collision`) arrive as the
+/// matching variants below.
 #[derive(Debug, thiserror::Error)]
 pub enum InferenceError {
     /// The grid's workspace description is unusable (zero dimension, bad voxel size).
@@ -253,70 +260,58 @@ pub fn backend_for_workspace(
 }
 
 /// Checks a normal grid before inference: valid workspace, buffer lengths, finite values, TSDF in
-/// [−1, 1] (up to [`TSDF_RANGE_TOLERANCE`]) and a positive truncation distance.
+/// [−1, 1] (up to [`TSDF_RANGE_TOLERANCE`]) and a positive truncation distance
+/// ([`NormalGridView::validate`], its errors as the matching [`InferenceError`] variants).
 pub fn validate_grid(grid: &NormalGridView<'_>) -> Result<(), InferenceError> {
-    grid.workspace.validate()?;
-    let n = grid.workspace.voxel_count();
-    if grid.tsdf.len() != n {
-        return Err(InferenceError::GridSizeMismatch {
-            channel: "tsdf",
-            got: grid.tsdf.len(),
-            expected: n,
-        });
-    }
-    if grid.normals.len() != 3 * n {
-        return Err(InferenceError::GridSizeMismatch {
-            channel: "normals",
-            got: grid.normals.len(),
-            expected: 3 * n,
-        });
-    }
-    if !(grid.truncation_m.is_finite() && grid.truncation_m > 0.0) {
-        return Err(InferenceError::InvalidTruncation(grid.truncation_m));
-    }
-    if let Some(index) = grid.normals.iter().position(|v| !v.is_finite()) {
-        return Err(InferenceError::NonFiniteInput {
-            channel: "normals",
-            index,
-        });
-    }
-    for (index, &value) in grid.tsdf.iter().enumerate() {
-        if !value.is_finite() {
-            return Err(InferenceError::NonFiniteInput {
-                channel: "tsdf",
-                index,
-            });
-        }
-        if value.abs() > 1.0 + TSDF_RANGE_TOLERANCE {
-            return Err(InferenceError::TsdfOutOfRange { index, value });
-        }
-    }
-    Ok(())
+    Ok(grid.validate()?)
 }
 
-/// Checks that a gripper model has positive finite sizes.
+/// Checks that a gripper model has positive finite sizes ([`GripperModel::validate`], reported as
+/// [`InferenceError::InvalidGripper`]).
 pub fn validate_gripper(gripper: &GripperModel) -> Result<(), InferenceError> {
-    let sizes = gripper
-        .finger_size_m
-        .iter()
-        .chain(gripper.palm_size_m.iter())
-        .chain(std::iter::once(&gripper.max_opening_m));
-    for &v in sizes {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(InferenceError::InvalidGripper(
-                "sizes and max opening must be positive and finite",
-            ));
+    gripper.validate().map_err(gripper_error)
+}
+
+/// A gripper model's validation error as an [`InferenceError`].
+fn gripper_error(e: GeometryError) -> InferenceError {
+    match e {
+        GeometryError::InvalidGripper(reason) => InferenceError::InvalidGripper(reason),
+        other => InferenceError::Workspace(other),
+    }
+}
+
+impl From<GridError> for InferenceError {
+    /// Each grid check keeps its own variant (and message).
+    fn from(e: GridError) -> Self {
+        match e {
+            GridError::Workspace(e) => Self::Workspace(e),
+            GridError::GridSizeMismatch {
+                channel,
+                got,
+                expected,
+            } => Self::GridSizeMismatch {
+                channel,
+                got,
+                expected,
+            },
+            GridError::NonFiniteInput { channel, index } => Self::NonFiniteInput { channel, index },
+            GridError::TsdfOutOfRange { index, value } => Self::TsdfOutOfRange { index, value },
+            GridError::InvalidTruncation(t) => Self::InvalidTruncation(t),
         }
     }
-    if !gripper.tip_beyond_tcp_m.is_finite()
-        || gripper.tip_beyond_tcp_m < 0.0
-        || gripper.tip_beyond_tcp_m > gripper.finger_size_m[2]
-    {
-        return Err(InferenceError::InvalidGripper(
-            "tip_beyond_tcp_m must lie in [0, finger length]",
-        ));
+}
+
+impl From<CollisionError> for InferenceError {
+    /// Grid, occupancy-setting and gripper errors of the collision checker keep their variants.
+    fn from(e: CollisionError) -> Self {
+        match e {
+            CollisionError::Grid(e) => e.into(),
+            CollisionError::InvalidConfig { field, reason } => {
+                Self::InvalidConfig { field, reason }
+            }
+            CollisionError::Gripper(e) => gripper_error(e),
+        }
     }
-    Ok(())
 }
 
 #[cfg(test)]

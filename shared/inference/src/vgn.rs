@@ -10,7 +10,7 @@
 //! its tool centre point at the voxel centre and its contacts at `centre ∓ b·w/2`.
 //!
 //! Per frame: input checks ([`crate::validate_grid`], the grid's workspace against the card),
-//! the network on tract or ONNX Runtime (the learned backend's runtimes), then VGN's
+//! the network on tract or ONNX Runtime ([`crate::onnx`], the learned backend's runtimes), then VGN's
 //! post-processing and decoding ([`decode`]: smoothing, width check, threshold, NMS, ranking,
 //! approach snapping). The seed is unused (the network is deterministic). Stage times of the
 //! last frame are in [`VgnBackend::last_timings`].
@@ -20,8 +20,10 @@ pub mod decode;
 pub use card::{is_vgn_model_dir, load_vgn_dir, VgnCard, VgnModelFiles};
 pub use decode::{snap_approach, VgnDecodeSettings, VgnDecoder, VgnOutputs};
 
-use crate::learned::runtime::{FixedGraph, GraphSpec, OutputTensor, RuntimeKind, UNET_INPUT};
-use crate::learned::{check_model_source, ModelError};
+use crate::learned::check_model_source;
+use crate::learned::runtime::UNET_INPUT;
+use crate::model_error::ModelError;
+use crate::onnx::{FixedGraph, GraphSpec, OutputTensor, RuntimeKind};
 use crate::{validate_grid, validate_gripper, InferenceBackend, InferenceError};
 use psgrasp_fusion::NormalGridView;
 use psgrasp_geometry::{GraspConfiguration, GripperModel, Workspace};

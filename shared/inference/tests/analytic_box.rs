@@ -2,10 +2,10 @@
 use nalgebra::{Point2, Vector3};
 use psgrasp_fusion::NormalGrid;
 use psgrasp_geometry::{GripperModel, Workspace};
-use psgrasp_inference::synthetic::{Primitive, SyntheticScene};
 use psgrasp_inference::{
     AnalyticBackend, AnalyticConfig, ContactRegion, InferenceBackend, InferenceError,
 };
+use psgrasp_test_support::synthetic::{Primitive, SyntheticScene};
 
 const VOXEL: f32 = 0.009;
 const FLOOR_Z: f32 = 0.018;

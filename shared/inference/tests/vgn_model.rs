@@ -13,7 +13,6 @@ use psgrasp_fusion::NormalGrid;
 use psgrasp_geometry::{approach_vectors, GraspConfiguration, GripperModel, Workspace};
 use psgrasp_inference::learned::card::sha256_hex;
 use psgrasp_inference::learned::{ModelError, RuntimeKind};
-use psgrasp_inference::synthetic::{Primitive, SyntheticScene};
 use psgrasp_inference::vgn::{
     load_vgn_dir, VgnCard, VgnDecodeSettings, VgnDecoder, VgnModel, VgnOutputs,
 };
@@ -21,6 +20,7 @@ use psgrasp_inference::{
     backend_for_workspace, backend_from_config, BackendConfig, InferenceBackend, InferenceError,
     VgnBackend, VgnConfig,
 };
+use psgrasp_test_support::synthetic::{Primitive, SyntheticScene};
 use std::path::{Path, PathBuf};
 
 mod common;

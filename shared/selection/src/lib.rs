@@ -13,7 +13,7 @@
 //! per approach — collision score ([`RejectionReason::CollisionScore`]), tilt from straight down
 //! ([`RejectionReason::Tilt`], the reachability cone), gripper at the grasp pose against the bin walls
 //! and floor ([`RejectionReason::BinCollision`], oriented box–box test) and against the observed
-//! scene ([`RejectionReason::SceneCollision`], the occupancy checker of `psgrasp-inference`), the
+//! scene ([`RejectionReason::SceneCollision`], the occupancy checker of `psgrasp-collision`), the
 //! pre-grasp pose backed off along −approach ([`RejectionReason::PregraspCollision`]) and poses
 //! between the two ([`RejectionReason::ApproachPathCollision`]).
 //!
@@ -27,9 +27,9 @@ pub mod overlap;
 pub use overlap::boxes_overlap;
 
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
+use psgrasp_collision::{CollisionError, OccupancyConfig, OccupancyGrid};
 use psgrasp_fusion::NormalGridView;
 use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel, OrientedBox, N_APPROACHES};
-use psgrasp_inference::{validate_gripper, InferenceError, OccupancyConfig, OccupancyGrid};
 use serde::{Deserialize, Serialize};
 
 /// Errors that prevent selection from running at all (bad configurations of grasps are counted as
@@ -49,7 +49,7 @@ pub enum SelectionError {
     InvalidBin(&'static str),
     /// The normal grid or the gripper model is invalid, or the occupancy could not be built.
     #[error(transparent)]
-    Scene(#[from] InferenceError),
+    Scene(#[from] CollisionError),
 }
 
 /// Selection settings; every threshold has a default.
@@ -325,7 +325,7 @@ impl<'a> GraspChecker<'a> {
         scene: Option<&'a OccupancyGrid>,
     ) -> Result<Self, SelectionError> {
         cfg.validate()?;
-        validate_gripper(&gripper)?;
+        gripper.validate().map_err(CollisionError::Gripper)?;
         validate_bin(&bin)?;
         Ok(Self {
             cfg,

@@ -2,10 +2,10 @@
 use nalgebra::{Point2, Point3, Vector3};
 use psgrasp_fusion::NormalGrid;
 use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel, Workspace, N_APPROACHES};
-use psgrasp_inference::synthetic::{Primitive, SyntheticScene};
 use psgrasp_selection::{
     select, select_filtered, GraspChecker, RejectionReason, SelectionConfig, SelectionError,
 };
+use psgrasp_test_support::synthetic::{Primitive, SyntheticScene};
 
 const TRUNC: f32 = 0.027;
 

@@ -6,3 +6,4 @@
 pub mod analytic;
 pub mod grasps;
 pub mod scenes;
+pub mod synthetic;

@@ -186,7 +186,7 @@ impl LearnedModel {
             #[cfg(not(feature = "ort"))]
             RuntimeKind::Ort => {
                 let _ = ort_library;
-                return Err(runtime::ort_not_built());
+                return Err(crate::onnx::ort_not_built());
             }
         };
         Ok(Self {

@@ -15,7 +15,7 @@
 //!    contact `centre − b·w/2`, collision score 1 at the snapped approach and 0 elsewhere (so
 //!    selection uses exactly that approach), quality = smoothed quality and `κ = 0`.
 use super::VgnConfig;
-use crate::learned::ModelError;
+use crate::model_error::ModelError;
 use nalgebra::{Point3, Vector3};
 use psgrasp_geometry::{
     approach_vectors, GraspConfiguration, GripperModel, Workspace, N_APPROACHES,

@@ -9,9 +9,9 @@
 //! the box grown by `margin` (the same rule as [`OrientedBox::contains`]). The grid keeps, per
 //! vertical column, a prefix count of occupied voxels, so one box costs one interval computation per
 //! column of its footprint instead of one test per voxel of its bounding box.
-use crate::{validate_grid, InferenceError};
+use crate::CollisionError;
 use nalgebra::{Isometry3, Point3};
-use psgrasp_fusion::NormalGridView;
+use psgrasp_fusion::{GridError, NormalGridView};
 use psgrasp_geometry::{GripperModel, OrientedBox, Workspace};
 use serde::{Deserialize, Serialize};
 
@@ -44,9 +44,9 @@ impl Default for OccupancyConfig {
 
 impl OccupancyConfig {
     /// Checks the threshold lies in (−1, 1].
-    pub fn validate(&self) -> Result<(), InferenceError> {
+    pub fn validate(&self) -> Result<(), CollisionError> {
         if !(self.occupied_below_tsdf > -1.0 && self.occupied_below_tsdf <= 1.0) {
-            return Err(InferenceError::InvalidConfig {
+            return Err(CollisionError::InvalidConfig {
                 field: "occupied_below_tsdf",
                 reason: "must lie in (-1, 1]",
             });
@@ -54,7 +54,7 @@ impl OccupancyConfig {
         if !(self.unobserved_at_or_below_tsdf >= -1.0
             && self.unobserved_at_or_below_tsdf < self.occupied_below_tsdf)
         {
-            return Err(InferenceError::InvalidConfig {
+            return Err(CollisionError::InvalidConfig {
                 field: "unobserved_at_or_below_tsdf",
                 reason: "must lie in [-1, occupied_below_tsdf)",
             });
@@ -182,8 +182,8 @@ impl OccupancyGrid {
     pub fn from_normal_grid(
         grid: &NormalGridView<'_>,
         cfg: &OccupancyConfig,
-    ) -> Result<Self, InferenceError> {
-        validate_grid(grid)?;
+    ) -> Result<Self, CollisionError> {
+        grid.validate()?;
         Self::from_tsdf(grid.workspace, grid.tsdf, cfg)
     }
 
@@ -192,16 +192,17 @@ impl OccupancyGrid {
         workspace: Workspace,
         tsdf: &[f32],
         cfg: &OccupancyConfig,
-    ) -> Result<Self, InferenceError> {
-        workspace.validate()?;
+    ) -> Result<Self, CollisionError> {
+        workspace.validate().map_err(GridError::from)?;
         cfg.validate()?;
         let n = workspace.voxel_count();
         if tsdf.len() != n {
-            return Err(InferenceError::GridSizeMismatch {
+            return Err(GridError::GridSizeMismatch {
                 channel: "tsdf",
                 got: tsdf.len(),
                 expected: n,
-            });
+            }
+            .into());
         }
         let [nx, ny, nz] = workspace.dims.map(|d| d as usize);
         let mut prefix = vec![0u16; nx * ny * (nz + 1)];
@@ -424,7 +425,7 @@ impl SceneCollisionChecker {
         grid: &NormalGridView<'_>,
         cfg: &OccupancyConfig,
         gripper: GripperModel,
-    ) -> Result<Self, InferenceError> {
+    ) -> Result<Self, CollisionError> {
         Ok(Self::new(
             OccupancyGrid::from_normal_grid(grid, cfg)?,
             gripper,
@@ -542,8 +543,8 @@ mod tests {
 
     #[test]
     fn column_queries_match_brute_force_in_clutter() {
-        use crate::synthetic::SyntheticScene;
         use nalgebra::Point2;
+        use psgrasp_test_support::synthetic::SyntheticScene;
         use rand::{Rng, SeedableRng};
         let ws = Workspace {
             dims: [30, 26, 20],
@@ -659,7 +660,7 @@ mod tests {
         };
         assert!(matches!(
             OccupancyGrid::from_tsdf(ws, &[0.0; 7], &OccupancyConfig::default()),
-            Err(InferenceError::GridSizeMismatch { .. })
+            Err(CollisionError::Grid(GridError::GridSizeMismatch { .. }))
         ));
         assert!(matches!(
             OccupancyGrid::from_tsdf(
@@ -670,7 +671,7 @@ mod tests {
                     ..OccupancyConfig::default()
                 }
             ),
-            Err(InferenceError::InvalidConfig { .. })
+            Err(CollisionError::InvalidConfig { .. })
         ));
     }
 }

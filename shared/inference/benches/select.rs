@@ -1,13 +1,14 @@
-//! Selection speed on the analytic backend's output for cluttered synthetic bins.
+//! Selection speed on the analytic backend's output for cluttered synthetic bins (here, not in
+//! `psgrasp-selection`, which does not depend on the backends).
 //!
-//! Run: `cargo bench -p psgrasp-selection --bench select`. Prints one table; single-threaded.
+//! Run: `cargo bench -p psgrasp-inference --bench select`. Prints one table; single-threaded.
 use nalgebra::{Point2, Vector3};
 use psgrasp_geometry::{BinModel, GripperModel, Workspace};
-use psgrasp_inference::synthetic::{Primitive, SyntheticScene};
 use psgrasp_inference::{
     AnalyticBackend, AnalyticConfig, ContactRegion, InferenceBackend, OccupancyGrid,
 };
 use psgrasp_selection::{select, select_with_occupancy, SelectionConfig};
+use psgrasp_test_support::synthetic::{Primitive, SyntheticScene};
 use std::hint::black_box;
 use std::time::Instant;
 

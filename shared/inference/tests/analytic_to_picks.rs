@@ -1,9 +1,9 @@
 //! The analytic backend's configurations through selection, checked against the exact scene.
 use nalgebra::{Point2, Point3, Vector3};
 use psgrasp_geometry::{BinModel, GripperModel, Workspace};
-use psgrasp_inference::synthetic::{Primitive, SyntheticScene};
 use psgrasp_inference::{AnalyticBackend, AnalyticConfig, ContactRegion, InferenceBackend};
 use psgrasp_selection::{select, SelectionConfig};
+use psgrasp_test_support::synthetic::{Primitive, SyntheticScene};
 
 #[test]
 fn picks_from_the_analytic_backend_hold_an_object_and_clear_the_scene() {
