@@ -342,7 +342,12 @@ fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
         sup.shutdown(Duration::from_secs(3));
         std::fs::remove_dir_all(&dir).ok();
         let outcome = report.outcomes.values().next().expect("one outcome");
-        assert_eq!(outcome.status(), StatusCode::Ok, "{}", outcome.header.error_text());
+        assert_eq!(
+            outcome.status(),
+            StatusCode::Ok,
+            "{}",
+            outcome.header.error_text()
+        );
 
         // The same frame in one process, with the camera as the frame header carries it.
         let header = psgrasp_ipc::FrameHeader::new(
@@ -354,13 +359,18 @@ fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
             0,
         );
         let mut chain = psgrasp_perception::Perception::new(&cfg.cell).unwrap();
-        let detection = chain.detect(&depth, &header.camera(), cfg.pipeline.seed).unwrap();
+        let detection = chain
+            .detect(&depth, &header.camera(), cfg.pipeline.seed)
+            .unwrap();
         let in_process = psgrasp::grasp_selection::pick_records(
             &detection.selection,
             &detection.configurations,
             cfg.cell.selection.top_k,
         );
         assert!(!in_process.is_empty(), "{kind}: the frame must have picks");
-        assert_eq!(outcome.picks, in_process, "{kind}: pipeline vs in-process chain");
+        assert_eq!(
+            outcome.picks, in_process,
+            "{kind}: pipeline vs in-process chain"
+        );
     }
 }

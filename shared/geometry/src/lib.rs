@@ -11,6 +11,7 @@ pub mod camera;
 pub mod depth;
 pub mod grasp;
 pub mod gripper;
+pub mod setting;
 pub mod workspace;
 
 pub use bin::BinModel;
@@ -21,6 +22,7 @@ pub use grasp::{
     GraspConfiguration, N_APPROACHES,
 };
 pub use gripper::{GripperModel, OrientedBox};
+pub use setting::{check_setting, OutOfRange};
 pub use workspace::Workspace;
 
 /// Errors raised when geometry inputs are invalid.

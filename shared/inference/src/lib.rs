@@ -116,6 +116,15 @@ pub enum InferenceError {
     },
 }
 
+impl From<psgrasp_geometry::OutOfRange> for InferenceError {
+    fn from(e: psgrasp_geometry::OutOfRange) -> Self {
+        Self::InvalidConfig {
+            field: e.field,
+            reason: e.reason,
+        }
+    }
+}
+
 /// A grasp inference backend: one normal grid in, grasp configurations out.
 pub trait InferenceBackend: Send {
     /// Short name for logs and records, e.g. "analytic".

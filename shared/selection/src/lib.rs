@@ -29,6 +29,7 @@ pub use overlap::boxes_overlap;
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 use psgrasp_collision::{CollisionError, OccupancyConfig, OccupancyGrid};
 use psgrasp_fusion::NormalGridView;
+use psgrasp_geometry::check_setting;
 use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel, OrientedBox, N_APPROACHES};
 use serde::{Deserialize, Serialize};
 
@@ -50,6 +51,15 @@ pub enum SelectionError {
     /// The normal grid or the gripper model is invalid, or the occupancy could not be built.
     #[error(transparent)]
     Scene(#[from] CollisionError),
+}
+
+impl From<psgrasp_geometry::OutOfRange> for SelectionError {
+    fn from(e: psgrasp_geometry::OutOfRange) -> Self {
+        Self::InvalidConfig {
+            field: e.field,
+            reason: e.reason,
+        }
+    }
 }
 
 /// Selection settings; every threshold has a default.
@@ -107,66 +117,58 @@ impl Default for SelectionConfig {
     }
 }
 
-fn check(ok: bool, field: &'static str, reason: &'static str) -> Result<(), SelectionError> {
-    if ok {
-        Ok(())
-    } else {
-        Err(SelectionError::InvalidConfig { field, reason })
-    }
-}
-
 impl SelectionConfig {
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), SelectionError> {
         let c = self;
         let metric = |v: f32| v.is_finite() && (0.0..1.0).contains(&v);
-        check(c.top_k >= 1, "top_k", "must be at least 1")?;
-        check(
+        check_setting(c.top_k >= 1, "top_k", "must be at least 1")?;
+        check_setting(
             (1..=N_APPROACHES).contains(&c.approaches_per_configuration),
             "approaches_per_configuration",
             "must lie in 1..=18",
         )?;
-        check(
+        check_setting(
             (0.0..=1.0).contains(&c.min_quality),
             "min_quality",
             "must lie in [0, 1]",
         )?;
-        check(
+        check_setting(
             (0.0..=1.0).contains(&c.min_collision_score),
             "min_collision_score",
             "must lie in [0, 1]",
         )?;
-        check(
+        check_setting(
             c.max_approach_tilt_deg > 0.0 && c.max_approach_tilt_deg <= 180.0,
             "max_approach_tilt_deg",
             "must lie in (0, 180]",
         )?;
-        check(
+        check_setting(
             metric(c.pregrasp_distance_m),
             "pregrasp_distance_m",
             "must lie in [0, 1) m",
         )?;
-        check(
+        check_setting(
             c.approach_path_samples <= 100,
             "approach_path_samples",
             "must be at most 100",
         )?;
-        check(
+        check_setting(
             metric(c.opening_clearance_m),
             "opening_clearance_m",
             "must lie in [0, 1) m",
         )?;
-        check(
+        check_setting(
             metric(c.collision_margin_m),
             "collision_margin_m",
             "must lie in [0, 1) m",
         )?;
-        check(
+        check_setting(
             metric(c.bin_margin_m),
             "bin_margin_m",
             "must lie in [0, 1) m",
         )?;
-        check(
+        check_setting(
             metric(c.bin_contact_tolerance_m),
             "bin_contact_tolerance_m",
             "must lie in [0, 1) m",

@@ -143,3 +143,12 @@ pub enum EvalError {
         source: std::io::Error,
     },
 }
+
+impl From<psgrasp_geometry::OutOfRange> for EvalError {
+    fn from(e: psgrasp_geometry::OutOfRange) -> Self {
+        Self::InvalidConfig {
+            field: e.field,
+            reason: e.reason,
+        }
+    }
+}

@@ -2,6 +2,7 @@
 use crate::InferenceError;
 use nalgebra::Point3;
 use psgrasp_collision::OccupancyConfig;
+use psgrasp_geometry::check_setting;
 use psgrasp_geometry::BinModel;
 use serde::{Deserialize, Serialize};
 
@@ -99,11 +100,12 @@ impl ContactRegion {
         let ok = (0..3).all(|a| {
             self.min_m[a].is_finite() && self.max_m[a].is_finite() && self.min_m[a] <= self.max_m[a]
         });
-        check(
+        check_setting(
             ok,
             "contact_region",
             "corners must be finite with min_m <= max_m",
         )
+        .map_err(Into::into)
     }
 }
 
@@ -134,94 +136,86 @@ impl Default for AnalyticConfig {
     }
 }
 
-fn check(ok: bool, field: &'static str, reason: &'static str) -> Result<(), InferenceError> {
-    if ok {
-        Ok(())
-    } else {
-        Err(InferenceError::InvalidConfig { field, reason })
-    }
-}
-
 impl AnalyticConfig {
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), InferenceError> {
         let c = self;
-        check(
+        check_setting(
             c.surface_search_voxels > 0.0 && c.surface_search_voxels <= 3.0,
             "surface_search_voxels",
             "must lie in (0, 3]",
         )?;
-        check(
+        check_setting(
             c.min_normal_norm > 0.0 && c.min_normal_norm <= 1.0,
             "min_normal_norm",
             "must lie in (0, 1]",
         )?;
-        check(
+        check_setting(
             (0.0..=90.0).contains(&c.skip_upward_normals_deg),
             "skip_upward_normals_deg",
             "must lie in [0, 90]",
         )?;
-        check(
+        check_setting(
             (0.0..45.0).contains(&c.vertical_face_tilt_deg),
             "vertical_face_tilt_deg",
             "must lie in [0, 45)",
         )?;
-        check(
+        check_setting(
             c.max_contact_samples > 0,
             "max_contact_samples",
             "must be at least 1",
         )?;
-        check(
+        check_setting(
             (1..=64).contains(&c.directions_per_contact),
             "directions_per_contact",
             "must lie in 1..=64",
         )?;
-        check(
+        check_setting(
             c.friction_cone_half_angle_deg > 0.0 && c.friction_cone_half_angle_deg < 90.0,
             "friction_cone_half_angle_deg",
             "must lie in (0, 90)",
         )?;
-        check(
+        check_setting(
             c.ray_step_voxels > 0.01 && c.ray_step_voxels <= 1.0,
             "ray_step_voxels",
             "must lie in (0.01, 1]",
         )?;
-        check(
+        check_setting(
             c.entry_search_voxels >= 0.0 && c.entry_search_voxels <= 5.0,
             "entry_search_voxels",
             "must lie in [0, 5]",
         )?;
-        check(
+        check_setting(
             c.min_width_m >= 0.0 && c.min_width_m.is_finite(),
             "min_width_m",
             "must be finite and >= 0",
         )?;
-        check(
+        check_setting(
             c.width_margin_m >= 0.0 && c.width_margin_m.is_finite(),
             "width_margin_m",
             "must be finite and >= 0",
         )?;
-        check(
+        check_setting(
             (0.0..=1.0).contains(&c.occluded_quality_factor),
             "occluded_quality_factor",
             "must lie in [0, 1]",
         )?;
-        check(
+        check_setting(
             (0.0..=1.0).contains(&c.min_quality),
             "min_quality",
             "must lie in [0, 1]",
         )?;
-        check(
+        check_setting(
             c.max_configurations > 0,
             "max_configurations",
             "must be at least 1",
         )?;
-        check(
+        check_setting(
             c.opening_clearance_m >= 0.0 && c.opening_clearance_m.is_finite(),
             "opening_clearance_m",
             "must be finite and >= 0",
         )?;
-        check(
+        check_setting(
             c.collision_margin_m >= 0.0 && c.collision_margin_m < 0.1,
             "collision_margin_m",
             "must lie in [0, 0.1)",

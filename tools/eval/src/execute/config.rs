@@ -1,5 +1,6 @@
 //! [`ExecutionConfig`]: the settings of one grasp execution, with defaults and range checks.
 use crate::EvalError;
+use psgrasp_geometry::check_setting;
 use psgrasp_sim::SettleConfig;
 use serde::{Deserialize, Serialize};
 
@@ -91,98 +92,90 @@ impl Default for ExecutionConfig {
     }
 }
 
-fn check(ok: bool, field: &'static str, reason: &'static str) -> Result<(), EvalError> {
-    if ok {
-        Ok(())
-    } else {
-        Err(EvalError::InvalidConfig { field, reason })
-    }
-}
-
 impl ExecutionConfig {
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), EvalError> {
         let pos = |v: f32| v.is_finite() && v > 0.0;
         let nonneg = |v: f32| v.is_finite() && v >= 0.0;
-        check(
+        check_setting(
             self.dt_s > 0.0 && self.dt_s <= 0.02,
             "dt_s",
             "must lie in (0, 0.02] s",
         )?;
-        check(
+        check_setting(
             (1..=100).contains(&self.solver_iterations),
             "solver_iterations",
             "must lie in 1..=100",
         )?;
-        check(
+        check_setting(
             pos(self.contact_natural_frequency_hz),
             "contact_natural_frequency_hz",
             "must be > 0",
         )?;
-        check(
+        check_setting(
             pos(self.contact_damping_ratio),
             "contact_damping_ratio",
             "must be > 0",
         )?;
-        check(
+        check_setting(
             nonneg(self.pregrasp_distance_m) && self.pregrasp_distance_m < 1.0,
             "pregrasp_distance_m",
             "must lie in [0, 1) m",
         )?;
-        check(
+        check_setting(
             nonneg(self.pregrasp_margin_m),
             "pregrasp_margin_m",
             "must be >= 0",
         )?;
-        check(
+        check_setting(
             pos(self.approach_speed_m_s),
             "approach_speed_m_s",
             "must be > 0",
         )?;
-        check(
+        check_setting(
             nonneg(self.touch_distance_m),
             "touch_distance_m",
             "must be >= 0",
         )?;
-        check(pos(self.close_speed_m_s), "close_speed_m_s", "must be > 0")?;
-        check(pos(self.finger_force_n), "finger_force_n", "must be > 0")?;
-        check(
+        check_setting(pos(self.close_speed_m_s), "close_speed_m_s", "must be > 0")?;
+        check_setting(pos(self.finger_force_n), "finger_force_n", "must be > 0")?;
+        check_setting(
             pos(self.max_close_time_s),
             "max_close_time_s",
             "must be > 0",
         )?;
-        check(
+        check_setting(
             pos(self.finger_stopped_speed_m_s),
             "finger_stopped_speed_m_s",
             "must be > 0",
         )?;
-        check(
+        check_setting(
             nonneg(self.finger_stopped_time_s),
             "finger_stopped_time_s",
             "must be >= 0",
         )?;
-        check(pos(self.finger_mass_kg), "finger_mass_kg", "must be > 0")?;
-        check(
+        check_setting(pos(self.finger_mass_kg), "finger_mass_kg", "must be > 0")?;
+        check_setting(
             nonneg(self.finger_friction),
             "finger_friction",
             "must be >= 0",
         )?;
-        check(
+        check_setting(
             pos(self.lift_height_m) && self.lift_height_m < 2.0,
             "lift_height_m",
             "must lie in (0, 2) m",
         )?;
-        check(pos(self.lift_speed_m_s), "lift_speed_m_s", "must be > 0")?;
-        check(nonneg(self.hold_time_s), "hold_time_s", "must be >= 0")?;
-        check(nonneg(self.min_opening_m), "min_opening_m", "must be >= 0")?;
-        check(
+        check_setting(pos(self.lift_speed_m_s), "lift_speed_m_s", "must be > 0")?;
+        check_setting(nonneg(self.hold_time_s), "hold_time_s", "must be >= 0")?;
+        check_setting(nonneg(self.min_opening_m), "min_opening_m", "must be >= 0")?;
+        check_setting(
             self.lifted_fraction > 0.0 && self.lifted_fraction < 1.0,
             "lifted_fraction",
             "must lie in (0, 1)",
         )?;
-        check(nonneg(self.settle_time_s), "settle_time_s", "must be >= 0")?;
+        check_setting(nonneg(self.settle_time_s), "settle_time_s", "must be >= 0")?;
         let o = &self.objects;
-        check(
+        check_setting(
             nonneg(o.friction) && nonneg(o.restitution) && pos(o.density),
             "objects",
             "friction and restitution must be >= 0, density > 0",
