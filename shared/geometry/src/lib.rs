@@ -8,6 +8,7 @@
 
 pub mod bin;
 pub mod camera;
+pub mod clearance;
 pub mod depth;
 pub mod grasp;
 pub mod gripper;
@@ -16,6 +17,7 @@ pub mod workspace;
 
 pub use bin::BinModel;
 pub use camera::{CameraIntrinsics, CameraModel};
+pub use clearance::HandClearance;
 pub use depth::{DepthError, DepthImage};
 pub use grasp::{
     antipodal_quality, approach_angles, approach_vectors, baseline_perpendicular, ContactGrasp,

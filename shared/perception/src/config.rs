@@ -112,11 +112,16 @@ impl CellConfig {
     }
 
     /// `backend` as this cell runs it: an analytic backend without its own contact region gets
-    /// the bin interior, inset by [`ChainConfig::contact_region_inset_m`].
+    /// the bin interior, inset by [`ChainConfig::contact_region_inset_m`], and scores collisions
+    /// with the hand clearance selection uses (`[selection.clearance]`).
     pub fn effective_backend(&self, backend: &BackendConfig) -> BackendConfig {
-        backend
+        let mut backend = backend
             .clone()
-            .with_bin_interior_contacts(&self.bin, self.perception.contact_region_inset_m)
+            .with_bin_interior_contacts(&self.bin, self.perception.contact_region_inset_m);
+        if let BackendConfig::Analytic(a) = &mut backend {
+            a.clearance = self.selection.clearance;
+        }
+        backend
     }
 
     /// Builds `backend` (as [`CellConfig::effective_backend`]) for this cell's workspace and
@@ -237,5 +242,22 @@ mod tests {
         let region = a.contact_region.expect("bin interior");
         let expected = psgrasp_inference::ContactRegion::inside_bin(&cell.bin, 0.02);
         assert_eq!(region, expected);
+    }
+
+    #[test]
+    fn the_analytic_scores_use_the_clearance_selection_uses() {
+        let mut cell: CellConfig =
+            toml::from_str("[selection.clearance]\nopening_clearance_m = 0.04\n").unwrap();
+        assert_eq!(cell.selection.clearance.opening_clearance_m, 0.04);
+        cell.selection.clearance.collision_margin_m = 0.006;
+        let BackendConfig::Analytic(a) = cell.effective_backend(&cell.inference) else {
+            panic!("default backend is analytic");
+        };
+        assert_eq!(a.clearance, cell.selection.clearance);
+        // Not a key of [inference]: the clearance is defined once.
+        assert!(toml::from_str::<CellConfig>(
+            "[inference]\nkind = \"analytic\"\nopening_clearance_m = 0.04\n"
+        )
+        .is_err());
     }
 }

@@ -17,7 +17,7 @@
 //! pre-grasp pose backed off along −approach ([`RejectionReason::PregraspCollision`]) and poses
 //! between the two ([`RejectionReason::ApproachPathCollision`]).
 //!
-//! The gripper is checked open at `min(width + opening_clearance_m, max opening)`: the opening the
+//! The gripper is checked open at `min(width + clearance.opening_clearance_m, max opening)`: the opening the
 //! robot should command ([`SelectedGrasp::opening_m`]). Picks are ordered by quality, then collision
 //! score, and cut to [`SelectionConfig::top_k`].
 #![warn(missing_docs)]
@@ -29,8 +29,10 @@ pub use overlap::boxes_overlap;
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 use psgrasp_collision::{CollisionError, OccupancyConfig, OccupancyGrid};
 use psgrasp_fusion::NormalGridView;
-use psgrasp_geometry::check_setting;
-use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel, OrientedBox, N_APPROACHES};
+use psgrasp_geometry::{
+    check_setting, BinModel, GraspConfiguration, GripperModel, HandClearance, OrientedBox,
+    N_APPROACHES,
+};
 use serde::{Deserialize, Serialize};
 
 /// Errors that prevent selection from running at all (bad configurations of grasps are counted as
@@ -76,14 +78,11 @@ pub struct SelectionConfig {
     pub min_collision_score: f32,
     /// Largest angle between the approach and straight down (the reachability cone), degrees.
     pub max_approach_tilt_deg: f32,
-    /// Distance the pre-grasp pose is backed off along −approach, metres.
-    pub pregrasp_distance_m: f32,
     /// Poses checked between the pre-grasp and the grasp pose (evenly spaced, ends excluded).
     pub approach_path_samples: usize,
-    /// Opening checked and commanded: width plus this clearance (capped at the maximum opening).
-    pub opening_clearance_m: f32,
-    /// Gripper boxes are grown by this margin against the observed scene, metres.
-    pub collision_margin_m: f32,
+    /// The hand's opening clearance, scene margin and pre-grasp distance: the one definition the
+    /// analytic backend's collision scores and the evaluation's execution use too.
+    pub clearance: HandClearance,
     /// Gripper boxes are grown by this margin against the bin walls and floor, metres.
     pub bin_margin_m: f32,
     /// Contacts may lie at most this far outside the bin's inner volume, metres.
@@ -104,10 +103,8 @@ impl Default for SelectionConfig {
             min_quality: 0.5,
             min_collision_score: 0.5,
             max_approach_tilt_deg: 60.0,
-            pregrasp_distance_m: 0.08,
             approach_path_samples: 2,
-            opening_clearance_m: 0.02,
-            collision_margin_m: 0.004,
+            clearance: HandClearance::default(),
             bin_margin_m: 0.003,
             bin_contact_tolerance_m: 0.005,
             check_bin_collision: true,
@@ -144,25 +141,11 @@ impl SelectionConfig {
             "must lie in (0, 180]",
         )?;
         check_setting(
-            metric(c.pregrasp_distance_m),
-            "pregrasp_distance_m",
-            "must lie in [0, 1) m",
-        )?;
-        check_setting(
             c.approach_path_samples <= 100,
             "approach_path_samples",
             "must be at most 100",
         )?;
-        check_setting(
-            metric(c.opening_clearance_m),
-            "opening_clearance_m",
-            "must lie in [0, 1) m",
-        )?;
-        check_setting(
-            metric(c.collision_margin_m),
-            "collision_margin_m",
-            "must lie in [0, 1) m",
-        )?;
+        c.clearance.validate()?;
         check_setting(
             metric(c.bin_margin_m),
             "bin_margin_m",
@@ -270,6 +253,9 @@ pub struct SelectedGrasp {
     pub workspace_from_gripper: Isometry3<f32>,
     /// Gripper pose before the final approach: the grasp pose backed off along −approach.
     pub pregrasp: Isometry3<f32>,
+    /// How far `pregrasp` is backed off along −approach, metres (the execution moves in from
+    /// there).
+    pub pregrasp_distance_m: f32,
     /// Contact-to-contact width, metres.
     pub width: f32,
     /// Opening to command before closing: `min(width + clearance, max opening)`, metres.
@@ -392,7 +378,7 @@ impl<'a> GraspChecker<'a> {
             // Fingers first: they are the likelier to collide.
             if [1, 2, 0]
                 .iter()
-                .any(|&i| scene.box_collides(&boxes[i], self.cfg.collision_margin_m))
+                .any(|&i| scene.box_collides(&boxes[i], self.cfg.clearance.collision_margin_m))
             {
                 return Some(RejectionReason::SceneCollision);
             }
@@ -421,7 +407,10 @@ impl<'a> GraspChecker<'a> {
             return Err(RejectionReason::Tilt);
         }
         let pose = grasp.workspace_from_gripper();
-        let opening = (c.width + self.cfg.opening_clearance_m).min(self.gripper.max_opening_m);
+        let opening = self
+            .cfg
+            .clearance
+            .opening_m(c.width, self.gripper.max_opening_m);
         if let Some(reason) = self.gripper_collides(&pose, opening) {
             return Err(reason);
         }
@@ -432,13 +421,13 @@ impl<'a> GraspChecker<'a> {
                 pose.rotation,
             )
         };
-        let pregrasp = backed_off(self.cfg.pregrasp_distance_m);
+        let pregrasp = backed_off(self.cfg.clearance.pregrasp_distance_m);
         if self.gripper_collides(&pregrasp, opening).is_some() {
             return Err(RejectionReason::PregraspCollision);
         }
         let n = self.cfg.approach_path_samples;
         for s in 1..=n {
-            let distance = self.cfg.pregrasp_distance_m * s as f32 / (n + 1) as f32;
+            let distance = self.cfg.clearance.pregrasp_distance_m * s as f32 / (n + 1) as f32;
             if self
                 .gripper_collides(&backed_off(distance), opening)
                 .is_some()
@@ -449,6 +438,7 @@ impl<'a> GraspChecker<'a> {
         Ok(SelectedGrasp {
             workspace_from_gripper: pose,
             pregrasp,
+            pregrasp_distance_m: self.cfg.clearance.pregrasp_distance_m,
             width: c.width,
             opening_m: opening,
             quality: c.quality,

@@ -302,7 +302,10 @@ fn obstacle_between_pregrasp_and_grasp_is_found_on_the_path() {
         [0.38, 0.33, tcp_z + 0.16],
     );
     let far = SelectionConfig {
-        pregrasp_distance_m: 0.3,
+        clearance: psgrasp_geometry::HandClearance {
+            pregrasp_distance_m: 0.3,
+            ..Default::default()
+        },
         ..SelectionConfig::default()
     };
     let sel = run(&[c], &grid, &far);
@@ -410,6 +413,6 @@ fn config_parses_from_toml_with_defaults() {
     let cfg: SelectionConfig = toml::from_str("top_k = 3\nmax_approach_tilt_deg = 45.0\n").unwrap();
     assert_eq!(cfg.top_k, 3);
     assert_eq!(cfg.approaches_per_configuration, 8);
-    assert_eq!(cfg.pregrasp_distance_m, 0.08);
+    assert_eq!(cfg.clearance.pregrasp_distance_m, 0.08);
     assert!(toml::from_str::<SelectionConfig>("top_kk = 3\n").is_err());
 }

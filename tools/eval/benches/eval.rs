@@ -15,6 +15,7 @@ fn top_down_at(p: Vector3<f32>, opening_m: f32) -> GraspCommand {
     GraspCommand {
         workspace_from_gripper: top_down_pose(Point3::from(p)),
         opening_m,
+        pregrasp_distance_m: 0.08,
     }
 }
 

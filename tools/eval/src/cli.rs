@@ -414,14 +414,14 @@ mod tests {
         assert_eq!(back, paper);
         // The wide-opening variant widens the commanded opening, nothing else.
         let wide = load_protocol(Some(&dir.join("eval-protocol-paper-wide-opening.toml"))).unwrap();
-        assert_eq!(wide.cell().selection.opening_clearance_m, 0.04);
+        assert_eq!(wide.cell().selection.clearance.opening_clearance_m, 0.04);
         assert!(
-            corrected.cell().selection.opening_clearance_m
-                < wide.cell().selection.opening_clearance_m
+            corrected.cell().selection.clearance.opening_clearance_m
+                < wide.cell().selection.clearance.opening_clearance_m
         );
         let mut back = wide.clone();
-        back.scenes.cell.selection.opening_clearance_m =
-            corrected.cell().selection.opening_clearance_m;
+        back.scenes.cell.selection.clearance.opening_clearance_m =
+            corrected.cell().selection.clearance.opening_clearance_m;
         assert_eq!(back, corrected);
         // The Franka-fingertip variant changes the hand's tip depth, nothing else, and the
         // models trained for the 15 mm tip are refused under it (their card's approach depth).

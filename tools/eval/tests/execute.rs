@@ -15,6 +15,7 @@ fn top_down(scene: &Scene, object: usize, opening_m: f32) -> GraspCommand {
     GraspCommand {
         workspace_from_gripper: pose(Point3::from(p), Vector3::x(), -Vector3::z()),
         opening_m,
+        pregrasp_distance_m: 0.08,
     }
 }
 
@@ -133,6 +134,7 @@ fn colliding_pregrasp_aborts_without_touching_the_scene() {
     let cmd = GraspCommand {
         workspace_from_gripper: pose(Point3::from(p), Vector3::y(), Vector3::x()),
         opening_m: 0.06,
+        pregrasp_distance_m: 0.08,
     };
     let ex = run(&scene, &cmd);
     assert_eq!(ex.report.outcome, GraspOutcome::PregraspCollision);
@@ -163,6 +165,7 @@ fn closing_on_nothing_and_double_grasps_fail() {
             -Vector3::z(),
         ),
         opening_m: 0.075,
+        pregrasp_distance_m: 0.08,
     };
     let ex = run(&two, &cmd);
     assert_eq!(ex.report.outcome, GraspOutcome::DoubleGrasp);

@@ -2,8 +2,8 @@
 use crate::InferenceError;
 use nalgebra::Point3;
 use psgrasp_collision::OccupancyConfig;
-use psgrasp_geometry::check_setting;
 use psgrasp_geometry::BinModel;
+use psgrasp_geometry::{check_setting, HandClearance};
 use serde::{Deserialize, Serialize};
 
 /// Settings of the analytic backend; every threshold has a default tuned for the 9 mm grid.
@@ -47,10 +47,11 @@ pub struct AnalyticConfig {
     pub min_quality: f32,
     /// Most configurations returned per frame (the best by quality).
     pub max_configurations: usize,
-    /// Opening used for the collision scores: width plus this clearance (capped at the maximum).
-    pub opening_clearance_m: f32,
-    /// Gripper boxes are grown by this margin for the collision scores.
-    pub collision_margin_m: f32,
+    /// The hand's clearances for the collision scores (opening and scene margin). Not read from
+    /// `[inference]`: a cell sets them from `[selection.clearance]`, so the scores test the hand
+    /// that selection checks and commands (`psgrasp_perception::CellConfig::effective_backend`).
+    #[serde(skip)]
+    pub clearance: HandClearance,
     /// Drop configurations whose 18 approaches all collide.
     pub require_free_approach: bool,
     /// How the TSDF becomes occupied voxels.
@@ -127,8 +128,7 @@ impl Default for AnalyticConfig {
             occluded_quality_factor: 0.75,
             min_quality: 0.5,
             max_configurations: 1000,
-            opening_clearance_m: 0.02,
-            collision_margin_m: 0.004,
+            clearance: HandClearance::default(),
             require_free_approach: true,
             occupancy: OccupancyConfig::default(),
             contact_region: None,
@@ -210,16 +210,7 @@ impl AnalyticConfig {
             "max_configurations",
             "must be at least 1",
         )?;
-        check_setting(
-            c.opening_clearance_m >= 0.0 && c.opening_clearance_m.is_finite(),
-            "opening_clearance_m",
-            "must be finite and >= 0",
-        )?;
-        check_setting(
-            c.collision_margin_m >= 0.0 && c.collision_margin_m < 0.1,
-            "collision_margin_m",
-            "must lie in [0, 0.1)",
-        )?;
+        c.clearance.validate()?;
         if let Some(r) = &c.contact_region {
             r.validate()?;
         }

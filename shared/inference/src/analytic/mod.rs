@@ -33,7 +33,7 @@
 //!
 //!    The best baseline per contact (highest `q`) is kept: one configuration per contact point.
 //! 4. **Collision scores.** For the 18 approach vectors `a_i` of the baseline, the gripper at opening
-//!    `min(w + opening_clearance_m, max opening)` is tested against the observed occupancy
+//!    `min(w + clearance.opening_clearance_m, max opening)` is tested against the observed occupancy
 //!    ([`SceneCollisionChecker`]): `σ_i = 1` if free, else 0.
 //!
 //! Configurations are returned sorted by quality (descending), at most
@@ -380,7 +380,10 @@ impl AnalyticBackend {
         checker: &SceneCollisionChecker,
         c: &Candidate,
     ) -> [f32; N_APPROACHES] {
-        let opening = (c.width + self.cfg.opening_clearance_m).min(self.gripper.max_opening_m);
+        let opening = self
+            .cfg
+            .clearance
+            .opening_m(c.width, self.gripper.max_opening_m);
         let approaches = approach_vectors(&c.baseline);
         std::array::from_fn(|i| {
             let grasp = ContactGrasp {
@@ -390,7 +393,7 @@ impl AnalyticBackend {
                 width: c.width,
             };
             let pose = grasp.workspace_from_gripper();
-            if checker.gripper_collides(&pose, opening, self.cfg.collision_margin_m) {
+            if checker.gripper_collides(&pose, opening, self.cfg.clearance.collision_margin_m) {
                 0.0
             } else {
                 1.0

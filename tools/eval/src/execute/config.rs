@@ -17,8 +17,6 @@ pub struct ExecutionConfig {
     pub contact_natural_frequency_hz: f32,
     /// Damping ratio of the contact constraints.
     pub contact_damping_ratio: f32,
-    /// Distance the pre-grasp pose is backed off along −approach, metres (paper: 5–10 cm).
-    pub pregrasp_distance_m: f32,
     /// Margin added to the hand boxes in the geometric pre-grasp check, metres.
     pub pregrasp_margin_m: f32,
     /// Palm speed from the pre-grasp to the grasp pose, m/s.
@@ -68,7 +66,6 @@ impl Default for ExecutionConfig {
             solver_iterations: 8,
             contact_natural_frequency_hz: 120.0,
             contact_damping_ratio: 10.0,
-            pregrasp_distance_m: 0.08,
             pregrasp_margin_m: 0.0,
             approach_speed_m_s: 0.2,
             abort_on_approach_contact: true,
@@ -116,11 +113,6 @@ impl ExecutionConfig {
             pos(self.contact_damping_ratio),
             "contact_damping_ratio",
             "must be > 0",
-        )?;
-        check_setting(
-            nonneg(self.pregrasp_distance_m) && self.pregrasp_distance_m < 1.0,
-            "pregrasp_distance_m",
-            "must lie in [0, 1) m",
         )?;
         check_setting(
             nonneg(self.pregrasp_margin_m),

@@ -5,7 +5,7 @@
 //! ([`execute_grasp`]):
 //!
 //! 1. **Pre-grasp check.** The open hand at the pre-grasp pose (the grasp pose backed off
-//!    [`ExecutionConfig::pregrasp_distance_m`] along −approach) is tested geometrically against the
+//!    [`GraspCommand::pregrasp_distance_m`], selection's `clearance.pregrasp_distance_m`, along −approach) is tested geometrically against the
 //!    exact scene, bin included. A collision aborts the attempt ([`GraspOutcome::PregraspCollision`])
 //!    before any physics runs.
 //! 2. **Approach** from the pre-grasp to the grasp pose at [`ExecutionConfig::approach_speed_m_s`].
@@ -58,6 +58,9 @@ pub struct GraspCommand {
     pub workspace_from_gripper: Isometry3<f32>,
     /// Opening before closing, metres (clamped to the gripper's maximum).
     pub opening_m: f32,
+    /// How far before the grasp pose the approach starts, along −approach, metres (the pick's
+    /// pre-grasp pose).
+    pub pregrasp_distance_m: f32,
 }
 
 impl From<&psgrasp_selection::SelectedGrasp> for GraspCommand {
@@ -65,6 +68,7 @@ impl From<&psgrasp_selection::SelectedGrasp> for GraspCommand {
         Self {
             workspace_from_gripper: g.workspace_from_gripper,
             opening_m: g.opening_m,
+            pregrasp_distance_m: g.pregrasp_distance_m,
         }
     }
 }
@@ -189,6 +193,13 @@ fn validate_command(command: &GraspCommand, gripper: &GripperModel) -> Result<()
             "opening must be positive and finite",
         ));
     }
+    if !(command.pregrasp_distance_m.is_finite()
+        && (0.0..1.0).contains(&command.pregrasp_distance_m))
+    {
+        return Err(EvalError::InvalidGrasp(
+            "pre-grasp distance must lie in [0, 1) m",
+        ));
+    }
     if !(gripper.max_opening_m.is_finite() && gripper.max_opening_m > 0.0)
         || gripper
             .finger_size_m
@@ -202,7 +213,7 @@ fn validate_command(command: &GraspCommand, gripper: &GripperModel) -> Result<()
 }
 
 /// True if the open hand of `command` at its pre-grasp pose overlaps the exact scene: the check
-/// [`execute_grasp`] starts with (`cfg.pregrasp_distance_m` back, `cfg.pregrasp_margin_m` grown).
+/// [`execute_grasp`] starts with (`command.pregrasp_distance_m` back, `cfg.pregrasp_margin_m` grown).
 pub fn pregrasp_collides(
     scene: &Scene,
     gripper: &GripperModel,
@@ -210,7 +221,7 @@ pub fn pregrasp_collides(
     cfg: &ExecutionConfig,
 ) -> bool {
     let opening = command.opening_m.min(gripper.max_opening_m);
-    let pregrasp = pregrasp_pose(command, cfg.pregrasp_distance_m);
+    let pregrasp = pregrasp_pose(command, command.pregrasp_distance_m);
     hand_collides(scene, gripper, &pregrasp, opening, cfg.pregrasp_margin_m)
 }
 
@@ -243,6 +254,7 @@ mod tests {
         let mut cmd = GraspCommand {
             workspace_from_gripper: Isometry3::identity(),
             opening_m: 0.05,
+            pregrasp_distance_m: 0.08,
         };
         assert!(validate_command(&cmd, &g).is_ok());
         cmd.opening_m = f32::NAN;
@@ -260,6 +272,7 @@ mod tests {
         let cmd = GraspCommand {
             workspace_from_gripper: Isometry3::translation(0.1, 0.2, 0.3),
             opening_m: 0.05,
+            pregrasp_distance_m: 0.08,
         };
         // Identity rotation: approach = +z, so the pre-grasp lies below.
         let p = pregrasp_pose(&cmd, 0.08);

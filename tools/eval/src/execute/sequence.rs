@@ -40,7 +40,7 @@ pub fn execute_grasp(
             scene_after: scene.description().clone(),
         });
     }
-    let pregrasp = pregrasp_pose(command, cfg.pregrasp_distance_m);
+    let pregrasp = pregrasp_pose(command, command.pregrasp_distance_m);
 
     let desc = scene.description();
     let mut world = execution_world(cfg);
@@ -49,7 +49,7 @@ pub fn execute_grasp(
     let mut steps = 0usize;
 
     // Approach.
-    let distance = cfg.pregrasp_distance_m;
+    let distance = command.pregrasp_distance_m;
     let n_approach = ((distance / (cfg.approach_speed_m_s * cfg.dt_s)).ceil() as usize).max(1);
     let mut touch = None;
     // Where the palm is when the approach ends (the grasp pose unless a touch stopped it).
