@@ -209,6 +209,24 @@ fn killing_inference_restarts_it_and_reports_lost_frames() {
     assert_eq!(nodes_of(&cfg.pipeline.name), 0, "no residue after shutdown");
 }
 
+/// Replays the depth files of `dir` (`frames` of them) from the camera pose the synthetic source
+/// used, losslessly: back-pressure instead of dropping, however slow a loaded machine is.
+fn lossless_replay(cfg: &mut PipelineConfig, dir: &std::path::Path, frames: u64) {
+    let cam = cfg.camera_model();
+    let q = cam.workspace_from_camera.rotation.coords;
+    let t = cam.workspace_from_camera.translation.vector;
+    cfg.camera.source = SourceKind::Replay;
+    cfg.camera.replay.path = dir.to_path_buf();
+    cfg.camera.pose = Some(PoseConfig {
+        translation: [t.x, t.y, t.z],
+        rotation_xyzw: [q[0], q[1], q[2], q[3]],
+    });
+    cfg.camera.frames = frames;
+    cfg.pipeline.channel.drop_policy = DropPolicy::Block;
+    cfg.pipeline.channel.block_timeout_ms = 120_000;
+    cfg.pipeline.loss_timeout_ms = 120_000;
+}
+
 #[test]
 fn bad_frames_end_as_error_records() {
     let mut cfg = test_config("bad");
@@ -236,20 +254,7 @@ fn bad_frames_end_as_error_records() {
     )
     .unwrap();
     std::fs::write(dir.join("4-corrupt.npy"), b"\x93NUMPY garbage").unwrap();
-    let cam = cfg.camera_model();
-    let q = cam.workspace_from_camera.rotation.coords;
-    let t = cam.workspace_from_camera.translation.vector;
-    cfg.camera.source = SourceKind::Replay;
-    cfg.camera.replay.path = dir.clone();
-    cfg.camera.pose = Some(PoseConfig {
-        translation: [t.x, t.y, t.z],
-        rotation_xyzw: [q[0], q[1], q[2], q[3]],
-    });
-    cfg.camera.frames = 5;
-    // Lossless replay: back-pressure instead of dropping, however slow a loaded machine is.
-    cfg.pipeline.channel.drop_policy = DropPolicy::Block;
-    cfg.pipeline.channel.block_timeout_ms = 120_000;
-    cfg.pipeline.loss_timeout_ms = 120_000;
+    lossless_replay(&mut cfg, &dir, 5);
     let (report, mut sup) = run_frames(&cfg, 5, Duration::from_secs(120), &bin_dir()).unwrap();
     sup.shutdown(Duration::from_secs(3));
     std::fs::remove_dir_all(&dir).ok();
@@ -325,19 +330,7 @@ fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
             .render(0)
             .unwrap();
         save_depth_npy(&dir.join("0.npy"), &depth).unwrap();
-        let cam = cfg.camera_model();
-        let q = cam.workspace_from_camera.rotation.coords;
-        let t = cam.workspace_from_camera.translation.vector;
-        cfg.camera.source = SourceKind::Replay;
-        cfg.camera.replay.path = dir.clone();
-        cfg.camera.pose = Some(PoseConfig {
-            translation: [t.x, t.y, t.z],
-            rotation_xyzw: [q[0], q[1], q[2], q[3]],
-        });
-        cfg.camera.frames = 1;
-        cfg.pipeline.channel.drop_policy = DropPolicy::Block;
-        cfg.pipeline.channel.block_timeout_ms = 120_000;
-        cfg.pipeline.loss_timeout_ms = 120_000;
+        lossless_replay(&mut cfg, &dir, 1);
         let (report, mut sup) = run_frames(&cfg, 1, Duration::from_secs(240), &bin_dir()).unwrap();
         sup.shutdown(Duration::from_secs(3));
         std::fs::remove_dir_all(&dir).ok();

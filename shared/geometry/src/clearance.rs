@@ -71,6 +71,6 @@ mod tests {
         };
         assert_eq!(c.validate().unwrap_err().field, "pregrasp_distance_m");
         assert_eq!(HandClearance::default().opening_m(0.07, 0.08), 0.08);
-        assert_eq!(HandClearance::default().opening_m(0.03, 0.08), 0.05);
+        assert!((HandClearance::default().opening_m(0.03, 0.08) - 0.05).abs() < 1e-6);
     }
 }

@@ -61,35 +61,10 @@ pub enum InferenceError {
     /// The grid's workspace description is unusable (zero dimension, bad voxel size).
     #[error("invalid workspace: {0}")]
     Workspace(#[from] GeometryError),
-    /// A grid channel does not have the length its workspace implies.
-    #[error("grid {channel} has {got} values, the workspace needs {expected}")]
-    GridSizeMismatch {
-        /// Which buffer: `"tsdf"` or `"normals"`.
-        channel: &'static str,
-        /// Values received.
-        got: usize,
-        /// Values required by the workspace (N for the TSDF, 3·N for the normals).
-        expected: usize,
-    },
-    /// The grid holds a NaN or infinity.
-    #[error("grid {channel} holds a non-finite value at index {index}")]
-    NonFiniteInput {
-        /// Which buffer: `"tsdf"` or `"normals"`.
-        channel: &'static str,
-        /// First offending index into that buffer.
-        index: usize,
-    },
-    /// A normalised TSDF value lies outside [−1, 1].
-    #[error("normalised TSDF value {value} at voxel {index} is outside [-1, 1]")]
-    TsdfOutOfRange {
-        /// Voxel index.
-        index: usize,
-        /// The value found.
-        value: f32,
-    },
-    /// The truncation distance is not a positive finite number.
-    #[error("truncation distance must be positive and finite, got {0} m")]
-    InvalidTruncation(f32),
+    /// The normal grid is unusable (buffer lengths, non-finite values, TSDF range, truncation);
+    /// the checks and messages are the grid's own (`NormalGridView::validate`).
+    #[error(transparent)]
+    Grid(#[from] GridError),
     /// The gripper model is unusable (non-positive or non-finite sizes).
     #[error("invalid gripper model: {0}")]
     InvalidGripper(&'static str),
@@ -289,27 +264,6 @@ fn gripper_error(e: GeometryError) -> InferenceError {
     }
 }
 
-impl From<GridError> for InferenceError {
-    /// Each grid check keeps its own variant (and message).
-    fn from(e: GridError) -> Self {
-        match e {
-            GridError::Workspace(e) => Self::Workspace(e),
-            GridError::GridSizeMismatch {
-                channel,
-                got,
-                expected,
-            } => Self::GridSizeMismatch {
-                channel,
-                got,
-                expected,
-            },
-            GridError::NonFiniteInput { channel, index } => Self::NonFiniteInput { channel, index },
-            GridError::TsdfOutOfRange { index, value } => Self::TsdfOutOfRange { index, value },
-            GridError::InvalidTruncation(t) => Self::InvalidTruncation(t),
-        }
-    }
-}
-
 impl From<CollisionError> for InferenceError {
     /// Grid, occupancy-setting and gripper errors of the collision checker keep their variants.
     fn from(e: CollisionError) -> Self {
@@ -383,62 +337,65 @@ mod tests {
         g.tsdf.pop();
         assert!(matches!(
             validate_grid(&g.view()),
-            Err(InferenceError::GridSizeMismatch {
+            Err(InferenceError::Grid(GridError::GridSizeMismatch {
                 channel: "tsdf",
                 got: 119,
                 expected: 120
-            })
+            }))
         ));
 
         let mut g = small_grid();
         g.normals.push(0.0);
         assert!(matches!(
             validate_grid(&g.view()),
-            Err(InferenceError::GridSizeMismatch {
+            Err(InferenceError::Grid(GridError::GridSizeMismatch {
                 channel: "normals",
                 ..
-            })
+            }))
         ));
 
         let mut g = small_grid();
         g.tsdf[17] = f32::NAN;
         assert!(matches!(
             validate_grid(&g.view()),
-            Err(InferenceError::NonFiniteInput {
+            Err(InferenceError::Grid(GridError::NonFiniteInput {
                 channel: "tsdf",
                 index: 17
-            })
+            }))
         ));
 
         let mut g = small_grid();
         g.normals[200] = f32::INFINITY;
         assert!(matches!(
             validate_grid(&g.view()),
-            Err(InferenceError::NonFiniteInput {
+            Err(InferenceError::Grid(GridError::NonFiniteInput {
                 channel: "normals",
                 index: 200
-            })
+            }))
         ));
 
         let mut g = small_grid();
         g.tsdf[3] = -1.5;
         assert!(matches!(
             validate_grid(&g.view()),
-            Err(InferenceError::TsdfOutOfRange { index: 3, .. })
+            Err(InferenceError::Grid(GridError::TsdfOutOfRange {
+                index: 3,
+                ..
+            }))
         ));
 
         let mut g = small_grid();
         g.truncation_m = 0.0;
         assert!(matches!(
             validate_grid(&g.view()),
-            Err(InferenceError::InvalidTruncation(_))
+            Err(InferenceError::Grid(GridError::InvalidTruncation(_)))
         ));
 
         let mut g = small_grid();
         g.workspace.dims = [0, 5, 6];
         assert!(matches!(
             validate_grid(&g.view()),
-            Err(InferenceError::Workspace(_))
+            Err(InferenceError::Grid(GridError::Workspace(_)))
         ));
     }
 

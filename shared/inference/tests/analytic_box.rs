@@ -297,25 +297,31 @@ fn empty_floor_yields_nothing_and_bad_grids_are_errors() {
     bad.tsdf[10] = f32::NAN;
     assert!(matches!(
         be.infer(&bad.view(), 0),
-        Err(InferenceError::NonFiniteInput {
-            channel: "tsdf",
-            index: 10
-        })
+        Err(InferenceError::Grid(
+            psgrasp_fusion::GridError::NonFiniteInput {
+                channel: "tsdf",
+                index: 10
+            }
+        ))
     ));
     let mut bad = floor.clone();
     bad.normals.truncate(5);
     assert!(matches!(
         be.infer(&bad.view(), 0),
-        Err(InferenceError::GridSizeMismatch {
-            channel: "normals",
-            ..
-        })
+        Err(InferenceError::Grid(
+            psgrasp_fusion::GridError::GridSizeMismatch {
+                channel: "normals",
+                ..
+            }
+        ))
     ));
     let mut bad = floor;
     bad.truncation_m = f32::NAN;
     assert!(matches!(
         be.infer(&bad.view(), 0),
-        Err(InferenceError::InvalidTruncation(_))
+        Err(InferenceError::Grid(
+            psgrasp_fusion::GridError::InvalidTruncation(_)
+        ))
     ));
 }
 

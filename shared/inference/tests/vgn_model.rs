@@ -504,7 +504,9 @@ fn backend_end_to_end(kind: RuntimeKind, ort_library: Option<PathBuf>) {
     nan.normals[5] = f32::NAN;
     assert!(matches!(
         backend.infer(&nan.view(), 0),
-        Err(InferenceError::NonFiniteInput { .. })
+        Err(InferenceError::Grid(
+            psgrasp_fusion::GridError::NonFiniteInput { .. }
+        ))
     ));
 }
 
