@@ -461,7 +461,7 @@ pub fn run_scene_with(
         detection_ms += fusion_ms + inference_ms + selection_ms;
         configurations += configs.len();
         let Some(pick) = picks.picks.first() else {
-            final_rejections = Some(picks.rejected.clone());
+            final_rejections = Some(picks.rejected);
             break SceneEnd::NoGrasp;
         };
         let t = Instant::now();
