@@ -510,6 +510,11 @@ mod tests {
                 .depth_scale
                 .enabled
         );
+        // A setting a stage would refuse at start-up is refused here already.
+        let e = parse("[fusion]\ntruncation_voxels = -4.0").unwrap_err();
+        assert!(e.to_string().contains("fusion"), "{e}");
+        let e = parse("[selection]\nmin_quality = 2.0").unwrap_err();
+        assert!(e.to_string().contains("min_quality"), "{e}");
         let e = parse("[perception]\nmax_grasps_per_frame = 0").unwrap_err();
         assert!(
             e.to_string().contains("perception.max_grasps_per_frame"),

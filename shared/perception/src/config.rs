@@ -76,6 +76,10 @@ impl CellConfig {
         self.depth_scale
             .validate()
             .map_err(|e| invalid("depth_scale", e))?;
+        self.fusion.validate().map_err(|e| invalid("fusion", e))?;
+        self.selection
+            .validate()
+            .map_err(|e| invalid("selection", e))?;
         let g = &self.gripper;
         let extra = [g.max_opening_m, g.tip_beyond_tcp_m];
         let mut dims = g
@@ -201,6 +205,15 @@ mod tests {
         let mut cell = CellConfig::default();
         cell.bin.inner_size_m[0] = f32::NAN;
         assert_eq!(cell.validate().unwrap_err().field, "bin");
+        // What a stage checks when it starts is checked with the configuration.
+        let mut cell = CellConfig::default();
+        cell.selection.top_k = 0;
+        let e = cell.validate().unwrap_err();
+        assert_eq!(e.field, "selection");
+        assert!(e.reason.contains("top_k"), "{e}");
+        let mut cell = CellConfig::default();
+        cell.fusion.truncation_voxels = -4.0;
+        assert_eq!(cell.validate().unwrap_err().field, "fusion");
         assert!(toml::from_str::<CellConfig>("[perception]\nbogus = 1\n").is_err());
     }
 
