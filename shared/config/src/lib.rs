@@ -64,6 +64,13 @@ pub struct PipelineConfig {
     pub unknown_keys: NoUnknownKeys,
 }
 
+/// Longest duration setting, milliseconds (one day): in nanoseconds it still fits a `u64`.
+pub const MAX_DURATION_MS: u64 = 86_400_000;
+/// Slowest camera rate other than 0 (one frame per 1000 s).
+pub const MIN_RATE_HZ: f64 = 1e-3;
+/// Fastest camera rate.
+pub const MAX_RATE_HZ: f64 = 10_000.0;
+
 /// Process graph and queues.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -338,18 +345,47 @@ impl PipelineConfig {
                 ),
             ));
         }
-        if p.loss_timeout_ms < 100 {
+        // Durations are used as nanoseconds (u64) and `Duration`s: bounded so none can overflow.
+        for (field, ms, min) in [
+            ("pipeline.loss_timeout_ms", p.loss_timeout_ms, 100),
+            ("pipeline.stats_interval_ms", p.stats_interval_ms, 1),
+            (
+                "pipeline.channel.block_timeout_ms",
+                p.channel.block_timeout_ms,
+                0,
+            ),
+            (
+                "camera.wait_for_subscribers_ms",
+                self.camera.wait_for_subscribers_ms,
+                0,
+            ),
+        ] {
+            if !(min..=MAX_DURATION_MS).contains(&ms) {
+                return Err(bad(
+                    field,
+                    format!("{ms} must be in {min}..={MAX_DURATION_MS} ms"),
+                ));
+            }
+        }
+        if !(1..=MAX_DURATION_MS / 1000).contains(&p.restart_window_s) {
             return Err(bad(
-                "pipeline.loss_timeout_ms",
-                "must be at least 100 ms".into(),
+                "pipeline.restart_window_s",
+                format!(
+                    "{} must be in 1..={} s",
+                    p.restart_window_s,
+                    MAX_DURATION_MS / 1000
+                ),
             ));
         }
-        if p.stats_interval_ms == 0 {
-            return Err(bad("pipeline.stats_interval_ms", "must be > 0".into()));
-        }
         let c = &self.camera;
-        if !(c.rate_hz.is_finite() && c.rate_hz >= 0.0) {
-            return Err(bad("camera.rate_hz", format!("{} must be ≥ 0", c.rate_hz)));
+        if !(c.rate_hz == 0.0 || (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&c.rate_hz)) {
+            return Err(bad(
+                "camera.rate_hz",
+                format!(
+                    "{} must be 0 (as fast as accepted) or in {MIN_RATE_HZ}..={MAX_RATE_HZ} Hz",
+                    c.rate_hz
+                ),
+            ));
         }
         c.intrinsics
             .validate()
@@ -510,6 +546,18 @@ mod tests {
                 .depth_scale
                 .enabled
         );
+        // Rates and durations that would overflow or panic in a stage are refused by key.
+        let e = parse("[camera]\nrate_hz = 1e-300").unwrap_err();
+        assert!(e.to_string().contains("camera.rate_hz"), "{e}");
+        let e = parse("[camera]\nrate_hz = nan").unwrap_err();
+        assert!(e.to_string().contains("camera.rate_hz"), "{e}");
+        assert_eq!(parse("[camera]\nrate_hz = 0").unwrap().camera.rate_hz, 0.0);
+        let e = parse("[pipeline]\nloss_timeout_ms = 18446744073710").unwrap_err();
+        assert!(e.to_string().contains("pipeline.loss_timeout_ms"), "{e}");
+        let e = parse("[pipeline.channel]\nblock_timeout_ms = 18446744073710").unwrap_err();
+        assert!(e.to_string().contains("block_timeout_ms"), "{e}");
+        let e = parse("[pipeline]\nrestart_window_s = 0").unwrap_err();
+        assert!(e.to_string().contains("restart_window_s"), "{e}");
         // A setting a stage would refuse at start-up is refused here already.
         let e = parse("[fusion]\ntruncation_voxels = -4.0").unwrap_err();
         assert!(e.to_string().contains("fusion"), "{e}");
