@@ -4,4 +4,4 @@ mod client;
 mod server;
 
 pub use client::PickClient;
-pub use server::{NextPickPorts, NextPickServer};
+pub use server::{NextPickPorts, NextPickServer, PickCursor};

@@ -26,11 +26,50 @@ impl NextPickPorts {
     }
 }
 
+/// Which pick of the latest successful frame a controller gets next.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct PickCursor {
+    latest: Option<(u64, Vec<PickRecord>)>,
+    cursor: usize,
+    /// Whether the pick at `cursor` has been handed out: only then does a failure report move
+    /// past it (a new frame's first pick is never skipped).
+    handed_out: bool,
+}
+
+impl PickCursor {
+    /// Takes in the picks of `frame_id` if it is newer than the latest; starts at its best pick.
+    pub fn offer(&mut self, frame_id: u64, picks: &[PickRecord]) {
+        if self.latest.as_ref().is_none_or(|(id, _)| frame_id > *id) {
+            self.latest = Some((frame_id, picks.to_vec()));
+            self.cursor = 0;
+            self.handed_out = false;
+        }
+    }
+
+    /// The answer to a request in `mode` (`None`: an undefined wire value).
+    pub fn answer(&mut self, mode: Option<NextPickMode>) -> NextPickResponse {
+        let Some((frame_id, picks)) = &self.latest else {
+            return NextPickResponse::without_pick(NextPickStatus::NoFrameYet, 0);
+        };
+        match mode {
+            None => return NextPickResponse::without_pick(NextPickStatus::BadRequest, *frame_id),
+            Some(NextPickMode::AfterFailure) if self.handed_out => self.cursor += 1,
+            Some(_) => {}
+        }
+        match picks.get(self.cursor) {
+            Some(p) => {
+                self.handed_out = true;
+                NextPickResponse::with_pick(*frame_id, *p)
+            }
+            None => NextPickResponse::without_pick(NextPickStatus::Exhausted, *frame_id),
+        }
+    }
+}
+
 /// Serves `next-pick` requests from the latest successful pick list.
 pub struct NextPickServer<'p> {
     ports: &'p NextPickPorts,
-    latest: Option<(u64, Vec<PickRecord>)>,
-    cursor: usize,
+    picks: PickCursor,
 }
 
 impl<'p> NextPickServer<'p> {
@@ -57,8 +96,7 @@ impl<'p> NextPickServer<'p> {
     pub fn new(ports: &'p NextPickPorts) -> Self {
         Self {
             ports,
-            latest: None,
-            cursor: 0,
+            picks: PickCursor::default(),
         }
     }
 
@@ -66,9 +104,8 @@ impl<'p> NextPickServer<'p> {
     pub fn serve(&mut self) -> Result<()> {
         while let Some(s) = self.ports.picks.receive()? {
             let h = s.user_header();
-            if h.is_ok() && self.latest.as_ref().is_none_or(|(id, _)| h.frame_id > *id) {
-                self.latest = Some((h.frame_id, s.payload().to_vec()));
-                self.cursor = 0;
+            if h.is_ok() {
+                self.picks.offer(h.frame_id, s.payload());
             }
         }
         while let Some(active) = self
@@ -77,26 +114,57 @@ impl<'p> NextPickServer<'p> {
             .receive()
             .map_err(|e| anyhow::anyhow!("next-pick receive: {e:?}"))?
         {
-            let response = self.answer(active.payload().mode());
+            let response = self.picks.answer(active.payload().mode());
             active
                 .send_copy(response)
                 .map_err(|e| anyhow::anyhow!("next-pick respond: {e:?}"))?;
         }
         Ok(())
     }
+}
 
-    fn answer(&mut self, mode: Option<NextPickMode>) -> NextPickResponse {
-        let Some((frame_id, picks)) = &self.latest else {
-            return NextPickResponse::without_pick(NextPickStatus::NoFrameYet, 0);
-        };
-        match mode {
-            None => return NextPickResponse::without_pick(NextPickStatus::BadRequest, *frame_id),
-            Some(NextPickMode::AfterFailure) => self.cursor += 1,
-            Some(NextPickMode::Current) => {}
-        }
-        match picks.get(self.cursor) {
-            Some(p) => NextPickResponse::with_pick(*frame_id, *p),
-            None => NextPickResponse::without_pick(NextPickStatus::Exhausted, *frame_id),
-        }
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn picks(n: u32) -> Vec<PickRecord> {
+        (0..n)
+            .map(|rank| PickRecord {
+                rank,
+                ..Default::default()
+            })
+            .collect()
+    }
+
+    fn rank(r: NextPickResponse) -> Option<u32> {
+        (r.status() == Some(NextPickStatus::Pick)).then_some(r.pick.rank)
+    }
+
+    #[test]
+    fn a_failure_report_moves_on_but_never_past_a_pick_not_yet_handed_out() {
+        let mut c = PickCursor::default();
+        assert_eq!(
+            c.answer(Some(NextPickMode::Current)).status(),
+            Some(NextPickStatus::NoFrameYet)
+        );
+        c.offer(10, &picks(3));
+        assert_eq!(rank(c.answer(Some(NextPickMode::Current))), Some(0));
+        assert_eq!(rank(c.answer(Some(NextPickMode::Current))), Some(0));
+        assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure))), Some(1));
+        // A new frame arrives: the failure report of the old pick gives the new frame's best,
+        // not its second (issue 19, failure 7).
+        c.offer(11, &picks(3));
+        let r = c.answer(Some(NextPickMode::AfterFailure));
+        assert_eq!((r.frame_id, rank(r)), (11, Some(0)));
+        assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure))), Some(1));
+        assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure))), Some(2));
+        assert_eq!(
+            c.answer(Some(NextPickMode::AfterFailure)).status(),
+            Some(NextPickStatus::Exhausted)
+        );
+        // An older frame never replaces a newer one; an undefined mode is refused.
+        c.offer(9, &picks(1));
+        assert_eq!(c.answer(None).status(), Some(NextPickStatus::BadRequest));
+        assert_eq!(c.answer(None).frame_id, 11);
     }
 }
