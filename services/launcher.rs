@@ -22,6 +22,10 @@ pub struct StageProcess {
     pub restart_count: u32,
     /// Exited normally (finite source) and must not be restarted.
     pub finished: bool,
+    /// Died and waits for its restart (backoff) until this instant.
+    restart_due: Option<Instant>,
+    /// Died more than `max_restarts` times within the window: not restarted again. The reason.
+    pub gave_up: Option<String>,
 }
 
 impl StageProcess {
@@ -75,6 +79,8 @@ impl Supervisor {
                     restarts: vec![],
                     restart_count: 0,
                     finished: false,
+                    restart_due: None,
+                    gave_up: None,
                 });
             }
         }
@@ -124,18 +130,32 @@ impl Supervisor {
         Ok(())
     }
 
-    /// Checks every process; restarts the ones that died. Returns descriptions of what happened.
+    /// Checks every process; schedules a restart (with backoff) for the ones that died and
+    /// starts the ones whose backoff has passed. Returns descriptions of what happened.
     pub fn poll(&mut self) -> Result<Vec<String>> {
         let mut events = Vec::new();
+        let pipeline = self.config.pipeline.clone();
+        let window = Duration::from_secs(pipeline.restart_window_s);
         for i in 0..self.processes.len() {
-            let status = match self.processes[i].child.as_mut() {
+            let p = &mut self.processes[i];
+            let name = format!("{}[{}]", p.stage.name(), p.worker);
+            if let Some(due) = p.restart_due {
+                if Instant::now() >= due {
+                    p.restart_due = None;
+                    p.restarts.push(Instant::now());
+                    p.restart_count += 1;
+                    cleanup_dead_nodes();
+                    self.spawn(i)?;
+                    events.push(format!("{name} restarted"));
+                }
+                continue;
+            }
+            let status = match p.child.as_mut() {
                 Some(c) => c.try_wait()?,
                 None => continue,
             };
             let Some(status) = status else { continue };
-            let p = &mut self.processes[i];
             p.child = None;
-            let name = format!("{}[{}]", p.stage.name(), p.worker);
             if status.success() {
                 p.finished = true;
                 events.push(format!("{name} exited normally"));
@@ -143,31 +163,45 @@ impl Supervisor {
             }
             events.push(format!("{name} died ({status})"));
             tracing::warn!("{name} died ({status})");
-            if !self.config.pipeline.restart_on_failure {
+            if !pipeline.restart_on_failure {
+                p.gave_up = Some(format!("{name} died ({status}); restart_on_failure is off"));
                 continue;
             }
-            let window = Duration::from_secs(self.config.pipeline.restart_window_s);
             p.restarts.retain(|t| t.elapsed() < window);
-            if p.restarts.len() as u32 >= self.config.pipeline.max_restarts {
-                events.push(format!(
-                    "{name} gave up after {} restarts in {window:?}",
+            if p.restarts.len() as u32 >= pipeline.max_restarts {
+                let reason = format!(
+                    "{name} gave up after {} restarts in {window:?} (last exit: {status})",
                     p.restarts.len()
-                ));
-                tracing::error!("{name}: too many restarts, not restarting");
+                );
+                tracing::error!("{reason}");
+                events.push(reason.clone());
+                p.gave_up = Some(reason);
                 continue;
             }
-            p.restarts.push(Instant::now());
-            p.restart_count += 1;
-            cleanup_dead_nodes();
-            self.spawn(i)?;
-            events.push(format!("{name} restarted"));
+            let backoff = restart_backoff(
+                pipeline.restart_backoff_ms,
+                pipeline.restart_backoff_max_ms,
+                p.restarts.len() as u32,
+            );
+            p.restart_due = Some(Instant::now() + backoff);
+            events.push(format!("{name} restarts in {} ms", backoff.as_millis()));
         }
         Ok(events)
     }
 
-    /// True while any non-finished process runs.
+    /// Why the pipeline cannot run any more: the stages that gave up (empty while it can).
+    pub fn failures(&self) -> Vec<String> {
+        self.processes
+            .iter()
+            .filter_map(|p| p.gave_up.clone())
+            .collect()
+    }
+
+    /// True while any non-finished process runs or waits for its restart.
     pub fn any_running(&self) -> bool {
-        self.processes.iter().any(|p| p.child.is_some())
+        self.processes
+            .iter()
+            .any(|p| p.child.is_some() || p.restart_due.is_some())
     }
 
     /// Kills one stage process with SIGKILL (for failure tests and drills).
@@ -222,6 +256,29 @@ impl Drop for Supervisor {
         if self.any_running() {
             self.shutdown(Duration::from_secs(3));
         }
+    }
+}
+
+/// The wait before restart number `earlier + 1` within the window: `base_ms · 2^earlier`, at most
+/// `max_ms`.
+pub fn restart_backoff(base_ms: u64, max_ms: u64, earlier: u32) -> Duration {
+    let factor = 1u64.checked_shl(earlier.min(32)).unwrap_or(u64::MAX);
+    Duration::from_millis(base_ms.saturating_mul(factor).min(max_ms))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn restarts_back_off_exponentially_up_to_the_cap() {
+        let ms = |n| restart_backoff(100, 5_000, n).as_millis();
+        assert_eq!(
+            [ms(0), ms(1), ms(2), ms(5), ms(6)],
+            [100, 200, 400, 3_200, 5_000]
+        );
+        assert_eq!(restart_backoff(100, 5_000, 1_000).as_millis(), 5_000);
+        assert_eq!(restart_backoff(0, 5_000, 3).as_millis(), 0);
     }
 }
 

@@ -367,3 +367,42 @@ fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
         );
     }
 }
+
+/// A stage that cannot start (here: inference with a model directory that does not exist) is
+/// restarted with backoff, then `psgrasp up` stops the pipeline and exits non-zero naming the
+/// stage, instead of running on with a pipeline that answers nothing (issue 19, failure 5).
+#[test]
+fn up_fails_when_a_stage_cannot_stay_up() {
+    let mut cfg = test_config("giveup");
+    cfg.cell.inference =
+        BackendConfig::for_model_dir(std::path::Path::new("/nonexistent/model"), 1);
+    cfg.pipeline.max_restarts = 2;
+    cfg.pipeline.restart_backoff_ms = 20;
+    let path = write_temp_config(&cfg, "giveup").unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_psgrasp"))
+        .arg("up")
+        .arg("--config")
+        .arg(&path)
+        .output()
+        .unwrap();
+    std::fs::remove_file(&path).ok();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!out.status.success(), "{text}");
+    assert!(
+        text.contains("inference[0] gave up after 2 restarts"),
+        "{text}"
+    );
+    assert!(
+        text.contains("restarts in 20 ms") && text.contains("restarts in 40 ms"),
+        "{text}"
+    );
+    assert_eq!(
+        nodes_of(&cfg.pipeline.name),
+        0,
+        "no residue after the failed pipeline"
+    );
+}

@@ -214,16 +214,24 @@ fn up(config: PathBuf) -> Result<()> {
         cfg.pipeline.name,
         sup.processes.len()
     );
-    while node.node().wait(Duration::from_millis(200)).is_ok() {
+    while node.node().wait(Duration::from_millis(100)).is_ok() {
         for e in sup.poll()? {
             println!("{e}");
         }
-        if !sup.any_running() {
+        if !sup.failures().is_empty() || !sup.any_running() {
             break;
         }
     }
     println!("stopping…");
     sup.shutdown(Duration::from_secs(3));
+    let failures = sup.failures();
+    // A pipeline with a stage that cannot stay up answers nothing: say so and fail.
+    anyhow::ensure!(
+        failures.is_empty(),
+        "pipeline '{}' failed: {}",
+        cfg.pipeline.name,
+        failures.join("; ")
+    );
     Ok(())
 }
 

@@ -94,6 +94,11 @@ pub struct PipelineSection {
     pub max_restarts: u32,
     /// Window for `max_restarts`.
     pub restart_window_s: u64,
+    /// Wait before the first restart of a stage that died, milliseconds; doubled for each
+    /// further restart within `restart_window_s`.
+    pub restart_backoff_ms: u64,
+    /// Longest wait before a restart, milliseconds.
+    pub restart_backoff_max_ms: u64,
 }
 
 impl Default for PipelineSection {
@@ -108,6 +113,8 @@ impl Default for PipelineSection {
             seed: 0,
             max_restarts: 5,
             restart_window_s: 60,
+            restart_backoff_ms: 100,
+            restart_backoff_max_ms: 5_000,
         }
     }
 }
