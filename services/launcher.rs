@@ -266,22 +266,6 @@ pub fn restart_backoff(base_ms: u64, max_ms: u64, earlier: u32) -> Duration {
     Duration::from_millis(base_ms.saturating_mul(factor).min(max_ms))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn restarts_back_off_exponentially_up_to_the_cap() {
-        let ms = |n| restart_backoff(100, 5_000, n).as_millis();
-        assert_eq!(
-            [ms(0), ms(1), ms(2), ms(5), ms(6)],
-            [100, 200, 400, 3_200, 5_000]
-        );
-        assert_eq!(restart_backoff(100, 5_000, 1_000).as_millis(), 5_000);
-        assert_eq!(restart_backoff(0, 5_000, 3).as_millis(), 0);
-    }
-}
-
 /// Fails early when `/dev/shm` cannot hold the pipeline's buffers (a full tmpfs makes publishers
 /// die with SIGBUS later).
 pub fn check_shm_space(cfg: &PipelineConfig) -> Result<()> {
@@ -302,4 +286,20 @@ pub fn check_shm_space(cfg: &PipelineConfig) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn restarts_back_off_exponentially_up_to_the_cap() {
+        let ms = |n| restart_backoff(100, 5_000, n).as_millis();
+        assert_eq!(
+            [ms(0), ms(1), ms(2), ms(5), ms(6)],
+            [100, 200, 400, 3_200, 5_000]
+        );
+        assert_eq!(restart_backoff(100, 5_000, 1_000).as_millis(), 5_000);
+        assert_eq!(restart_backoff(0, 5_000, 3).as_millis(), 0);
+    }
 }
