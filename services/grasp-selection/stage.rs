@@ -2,7 +2,7 @@
 //! loss detection for every announced frame, and (worker 0) the next-pick server.
 use crate::inference::grid_view;
 use crate::next_pick::NextPickServer;
-use crate::stage::{run_stage, Output, Sent, Stage, StageArgs, StageContext, StepFailure};
+use crate::stage::{run_stage, Output, Sent, Shard, Stage, StageArgs, StageContext, StepFailure};
 use anyhow::Result;
 use psgrasp_geometry::{GraspConfiguration, Workspace};
 use psgrasp_ipc::{
@@ -22,8 +22,8 @@ pub struct GraspSelection<'a> {
     step: SelectionStep,
     /// Most picks published per frame (`selection.top_k`).
     max_picks: usize,
-    worker: u32,
-    workers: u32,
+    /// The frames of this worker (its share of the grid side input).
+    shard: Shard,
     announce: &'a FrameSubscriber<u8>,
     grid: &'a FrameSubscriber<f32>,
     grids: BTreeMap<u64, (FrameHeader, Vec<f32>)>,
@@ -34,10 +34,6 @@ pub struct GraspSelection<'a> {
 }
 
 impl GraspSelection<'_> {
-    fn owns(&self, frame_id: u64) -> bool {
-        frame_id % self.workers as u64 == self.worker as u64
-    }
-
     /// The picks of one grasp set on its frame's grid.
     fn select(
         &self,
@@ -97,7 +93,7 @@ impl Stage for GraspSelection<'_> {
         }
         while let Some(s) = self.grid.receive()? {
             let h = *s.user_header();
-            if self.owns(h.frame_id) && h.is_ok() {
+            if self.shard.owns(h.frame_id) && h.is_ok() {
                 self.grids.insert(h.frame_id, (h, s.payload().to_vec()));
                 while self.grids.len() > GRID_CACHE {
                     self.grids.pop_first();
@@ -198,8 +194,7 @@ pub fn run(args: StageArgs) -> Result<()> {
     let mut stage = GraspSelection {
         step,
         max_picks,
-        worker: ctx.worker,
-        workers: ctx.workers,
+        shard: ctx.shard(),
         announce: &announce_sub,
         grid: &grid_sub,
         grids: BTreeMap::new(),

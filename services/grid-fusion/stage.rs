@@ -6,6 +6,7 @@ use psgrasp_fusion::FusionError;
 use psgrasp_geometry::DepthImage;
 use psgrasp_ipc::{FrameHeader, MessageKind, Stamp, StatusCode};
 use psgrasp_perception::{FusionStep, PerceptionError};
+use std::borrow::Cow;
 use std::time::Duration;
 
 /// The grid-fusion step.
@@ -49,7 +50,7 @@ impl Stage for GridFusion {
         let camera = h.camera();
         let fused = DepthImage::from_metres(h.image_size[0], h.image_size[1], payload.to_vec())
             .map_err(|e| PerceptionError::Fusion(FusionError::from(e)))
-            .and_then(|mut depth| self.step.fuse(&mut depth, &camera));
+            .and_then(|depth| self.step.fuse(Cow::Owned(depth), &camera));
         match fused {
             Ok(scale) => {
                 if let Some(s) = scale {

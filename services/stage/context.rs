@@ -47,6 +47,23 @@ pub fn init_logging() {
     }
 }
 
+/// The frames one worker of a stage handles: those with `frame_id % workers == worker`, so
+/// every frame is handled by exactly one worker.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    /// Index of the worker.
+    pub worker: u32,
+    /// Workers of the stage.
+    pub workers: u32,
+}
+
+impl Shard {
+    /// True if this worker handles `frame_id`.
+    pub fn owns(&self, frame_id: u64) -> bool {
+        frame_id % self.workers as u64 == self.worker as u64
+    }
+}
+
 /// A stage process's shared state.
 pub struct StageContext {
     /// Which stage this is.
@@ -138,9 +155,17 @@ impl StageContext {
         }
     }
 
+    /// The frames this worker handles.
+    pub fn shard(&self) -> Shard {
+        Shard {
+            worker: self.worker,
+            workers: self.workers,
+        }
+    }
+
     /// True if this worker handles `frame_id`.
     pub fn owns(&self, frame_id: u64) -> bool {
-        frame_id % self.workers as u64 == self.worker as u64
+        self.shard().owns(frame_id)
     }
 
     /// Publishes the current counters.

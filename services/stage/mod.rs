@@ -7,7 +7,7 @@
 mod context;
 
 pub use context::{
-    init_logging, run_event_loop, stage_main, stats_due, LoopExit, StageArgs, StageContext,
+    init_logging, run_event_loop, stage_main, stats_due, LoopExit, Shard, StageArgs, StageContext,
 };
 
 use anyhow::Result;

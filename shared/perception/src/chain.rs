@@ -4,6 +4,7 @@ use psgrasp_fusion::{correct_depth_scale, DepthScale, FusionError, NormalGridVie
 use psgrasp_geometry::{CameraModel, DepthImage, GraspConfiguration};
 use psgrasp_inference::{InferenceBackend, InferenceError};
 use psgrasp_selection::{select_filtered, SelectedGrasp, Selection, SelectionError};
+use std::borrow::Cow;
 use std::time::Instant;
 
 /// Why the chain failed on a frame, by step.
@@ -53,22 +54,26 @@ impl FusionStep {
         })
     }
 
-    /// Corrects `depth` in place (when enabled) and fuses it into a fresh volume; the normal
-    /// grid is then written by [`FusionStep::write_grid`].
+    /// Corrects `depth` (when enabled; a borrowed frame is copied only then) and fuses it into
+    /// a fresh volume; the normal grid is then written by [`FusionStep::write_grid`].
     pub fn fuse(
         &mut self,
-        depth: &mut DepthImage,
+        mut depth: Cow<'_, DepthImage>,
         camera: &CameraModel,
     ) -> Result<Option<DepthScaleOutcome>, PerceptionError> {
         let scale = if self.cell.depth_scale.enabled {
-            let (estimate, applied) =
-                correct_depth_scale(depth, camera, &self.cell.bin, &self.cell.depth_scale)?;
+            let (estimate, applied) = correct_depth_scale(
+                depth.to_mut(),
+                camera,
+                &self.cell.bin,
+                &self.cell.depth_scale,
+            )?;
             Some(DepthScaleOutcome { estimate, applied })
         } else {
             None
         };
         self.volume.reset();
-        self.volume.integrate(depth, camera)?;
+        self.volume.integrate(&depth, camera)?;
         Ok(scale)
     }
 
@@ -163,7 +168,6 @@ impl SelectionStep {
     /// The step for `cell` (its bin, gripper and selection settings).
     pub fn new(cell: &CellConfig) -> Result<Self, PerceptionError> {
         cell.validate()?;
-        cell.selection.validate()?;
         Ok(Self { cell: cell.clone() })
     }
 
@@ -309,17 +313,7 @@ impl<'b> Perception<'b> {
         keep: impl FnMut(&SelectedGrasp) -> bool,
     ) -> Result<Detection, PerceptionError> {
         let t = Instant::now();
-        // Copied only where the correction may change it.
-        let mut corrected;
-        let depth_scale = if self.cell.depth_scale.enabled {
-            corrected = depth.clone();
-            self.fusion.fuse(&mut corrected, camera)?
-        } else {
-            // Uncorrected frames are only read: fuse without the copy.
-            self.fusion.volume.reset();
-            self.fusion.volume.integrate(depth, camera)?;
-            None
-        };
+        let depth_scale = self.fusion.fuse(Cow::Borrowed(depth), camera)?;
         self.fusion.write_grid(&mut self.grid)?;
         let fusion_ms = ms(t);
         let grid = grid_view(&self.cell, &self.grid, self.fusion.truncation_m());

@@ -92,10 +92,7 @@ impl ProtocolConfig {
                 reason: "must be at least 1",
             });
         }
-        let cell = self.cell();
-        cell.validate()?;
-        cell.depth_scale.validate()?;
-        cell.selection.validate()?;
+        self.cell().validate()?;
         self.execution.validate()
     }
 }

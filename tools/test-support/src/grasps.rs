@@ -4,7 +4,8 @@
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use psgrasp_fusion::NormalGrid;
 use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel};
-use psgrasp_inference::{AnalyticBackend, AnalyticConfig, ContactRegion};
+use psgrasp_inference::{AnalyticBackend, AnalyticConfig, BackendConfig};
+use psgrasp_perception::CellConfig;
 use psgrasp_selection::{select, SelectedGrasp, Selection, SelectionConfig};
 
 /// Gripper pose with baseline `x`, approach `z` (y = z × x) and the TCP at `tcp`.
@@ -22,11 +23,18 @@ pub fn top_down_pose(tcp: Point3<f32>) -> Isometry3<f32> {
     gripper_pose(tcp, Vector3::x(), -Vector3::z())
 }
 
-/// The analytic backend with default settings, contacts restricted to 5 mm inside `bin`'s walls.
+/// The analytic backend with default settings as a default cell with `bin` and `gripper` runs
+/// it ([`CellConfig::effective_backend`]: contacts kept `contact_region_inset_m` inside the bin).
 pub fn analytic_backend_in_bin(bin: &BinModel, gripper: GripperModel) -> AnalyticBackend {
-    let cfg = AnalyticConfig {
-        contact_region: Some(ContactRegion::inside_bin(bin, 0.005)),
-        ..AnalyticConfig::default()
+    let cell = CellConfig {
+        bin: *bin,
+        gripper,
+        ..CellConfig::default()
+    };
+    let BackendConfig::Analytic(cfg) =
+        cell.effective_backend(&BackendConfig::Analytic(AnalyticConfig::default()))
+    else {
+        unreachable!("an analytic configuration stays analytic")
     };
     AnalyticBackend::new(cfg, gripper).expect("analytic backend")
 }
