@@ -45,10 +45,7 @@ impl PipelineMonitor {
     /// Connects to pipeline `pipeline` (node name must be unique per process).
     pub fn connect(node_name: &str, pipeline: &str, channel: ChannelConfig) -> Result<Self> {
         let node = PipelineNode::new(node_name, pipeline, channel)?;
-        let picks = node.subscriber_with_buffer::<PickRecord>(
-            &node.names.picks(),
-            channel.subscriber_buffer.max(64),
-        )?;
+        let picks = node.outcome_subscriber()?;
         let stats = node.subscriber_with_buffer::<StageStats>(&node.names.stats(), 64)?;
         Ok(Self {
             node,
@@ -75,7 +72,7 @@ impl PipelineMonitor {
             }
             self.picks
                 .wait((deadline - now).min(Duration::from_millis(50)));
-            if self.node.node().wait(Duration::ZERO).is_err() {
+            if !self.node.sleep(Duration::ZERO) {
                 return Ok(None);
             }
         }

@@ -1,15 +1,85 @@
-//! camera-ingest: pulls frames from the configured [`crate::sources`] source, checks them and
-//! publishes them, announcing every frame id so that each one ends somewhere. It has no input,
-//! so it runs its own source loop instead of the stage driver, with the same context and
-//! counters.
+//! camera-ingest: pulls frames from the configured [`crate::sources`] source, checks them,
+//! admits them into the pipeline and keeps the [`FrameLedger`], so that every admitted frame ends
+//! as picks or exactly one error record whichever stage dies. It has no input, so it runs its
+//! own source loop instead of the stage driver, with the same context and counters.
+//!
+//! Admission control: at most `pipeline.max_frames_in_flight` frames are in the pipeline. A
+//! paced camera refuses a frame beyond that with an `Overload` record; an unpaced one
+//! (`rate_hz = 0`, replaying recorded data) waits for room, which is back-pressure without loss.
 use crate::sources::source_from_config;
 use crate::stage::{stats_due, StageArgs, StageContext};
 use anyhow::Result;
-use psgrasp_geometry::DepthImage;
-use psgrasp_ipc::{now_ns, FrameHeader, MessageKind, PickRecord, Stage, Stamp, StatusCode};
+use psgrasp_config::PipelineConfig;
+use psgrasp_geometry::{CameraModel, DepthImage};
+use psgrasp_ipc::{
+    now_ns, FrameHeader, FrameLedger, FramePublisher, FrameSubscriber, MessageKind, PickRecord,
+    ProgressEvent, Stage, Stamp, StatusCode, Verdict,
+};
 use std::time::{Duration, Instant};
 
-/// The camera-ingest process: pulls frames from the configured source and publishes them.
+/// How often an idle or waiting camera-ingest settles the ledger.
+const LEDGER_TICK: Duration = Duration::from_millis(5);
+
+/// The ports and the ledger that account for every admitted frame.
+struct Accounting {
+    ledger: FrameLedger,
+    progress: FrameSubscriber<ProgressEvent>,
+    /// Error records decided here (lost frames, refused and invalid frames).
+    outcomes: FramePublisher<PickRecord>,
+    events: Vec<ProgressEvent>,
+    template: FrameHeader,
+    max_in_flight: usize,
+}
+
+impl Accounting {
+    /// Reads the progress reports and publishes the error record of every frame the ledger
+    /// ends (a stage holding it restarted, or the loss timeout passed).
+    fn settle(&mut self, ctx: &mut StageContext) -> Result<()> {
+        while let Some(s) = self.progress.receive()? {
+            self.events.extend_from_slice(s.payload());
+        }
+        let mut verdicts = self.ledger.apply(&mut self.events);
+        self.events.clear();
+        verdicts.extend(self.ledger.expire(now_ns()));
+        for v in verdicts {
+            self.publish_verdict(ctx, &v)?;
+        }
+        Ok(())
+    }
+
+    fn publish_verdict(&self, ctx: &mut StageContext, v: &Verdict) -> Result<()> {
+        tracing::warn!("frame {}: {}", v.frame_id, v.message);
+        // Stages drop a late result of the frame: it has its outcome now.
+        ctx.report_verdict(v.frame_id);
+        self.publish_record(v.frame_id, v.status, v.stage, &v.message)?;
+        ctx.stats.errors += 1;
+        Ok(())
+    }
+
+    /// Publishes the error record of `frame_id` as its outcome.
+    fn publish_record(
+        &self,
+        frame_id: u64,
+        status: StatusCode,
+        stage: Stage,
+        message: &str,
+    ) -> Result<()> {
+        let mut rec = FrameHeader {
+            frame_id,
+            ..self.template
+        }
+        .into_error(status, stage, message);
+        rec.stamp(Stamp::SelectionEnd);
+        self.outcomes.send_header(rec)?;
+        Ok(())
+    }
+
+    fn full(&self) -> bool {
+        self.ledger.in_flight() >= self.max_in_flight
+    }
+}
+
+/// The camera-ingest process: pulls frames from the configured source and admits them.
 pub fn run(args: StageArgs) -> Result<()> {
     let mut ctx = StageContext::new(Stage::CameraIngest, &args)?;
     let cfg = ctx.config.clone();
@@ -18,73 +88,61 @@ pub fn run(args: StageArgs) -> Result<()> {
     let depth_pub = ctx
         .node
         .publisher::<f32>(&names.depth(), cfg.camera.intrinsics.pixel_count())?;
-    let announce_pub = ctx
-        .node
-        .publisher_with_buffer::<u8>(&names.announce(), 1, 1024)?;
-
-    // Wait for the consumers so the first frames are not published into the void.
-    let want_fusion = cfg.pipeline.workers.fusion as usize;
-    let want_selection = cfg.pipeline.workers.selection as usize;
-    // Each stage creates its output publishers only once its inputs are attached
-    // (`StageContext::attach_inputs`), so the selection workers' pick publishers mean the whole
-    // chain is ready.
-    let picks_publishers = || {
-        ctx.node
-            .publisher_count::<PickRecord>(&names.picks())
-            .unwrap_or(0)
-    };
-    let chain_ready = ctx.node.wait_until(
-        Duration::from_millis(cfg.camera.wait_for_subscribers_ms),
-        || {
-            depth_pub.subscriber_count() >= want_fusion
-                && announce_pub.subscriber_count() >= want_selection
-                && picks_publishers() >= want_selection
-        },
+    let fallback_camera = cfg.camera_model();
+    let mut template = FrameHeader::new(
+        MessageKind::SelectedGrasps,
+        0,
+        cfg.camera.source_id,
+        &fallback_camera,
+        &cfg.cell.workspace,
+        0,
     );
-    if chain_ready.is_none() {
+    template.stamp(Stamp::IngestPublished);
+    let w = cfg.pipeline.workers;
+    let mut acc = Accounting {
+        ledger: FrameLedger::new(
+            [w.fusion, w.inference, w.selection],
+            cfg.pipeline.loss_timeout_ms * 1_000_000,
+        ),
+        progress: ctx.node.progress_subscriber()?,
+        outcomes: ctx.node.outcome_publisher(1)?,
+        events: Vec::new(),
+        template,
+        max_in_flight: cfg.pipeline.max_frames_in_flight,
+    };
+    if !wait_for_chain(&ctx, &cfg, &depth_pub) {
         return Ok(());
     }
-    if depth_pub.subscriber_count() < want_fusion {
-        tracing::warn!(
-            "publishing without all grid-fusion workers connected ({} of {want_fusion})",
-            depth_pub.subscriber_count()
-        );
-    }
-    if picks_publishers() < want_selection {
-        tracing::warn!(
-            "publishing before all stages are ready ({} of {want_selection} grasp-selection \
-             workers publish picks)",
-            picks_publishers()
-        );
-    }
     tracing::info!(
-        "camera-ingest: source {} at {} Hz",
+        "camera-ingest: source {} at {} Hz, at most {} frames in flight",
         source.name(),
-        cfg.camera.rate_hz
+        cfg.camera.rate_hz,
+        cfg.pipeline.max_frames_in_flight
     );
-
-    let period = if cfg.camera.rate_hz > 0.0 {
-        Some(Duration::from_secs_f64(1.0 / cfg.camera.rate_hz))
-    } else {
-        None
-    };
-    let fallback_camera = cfg.camera_model();
+    let period =
+        (cfg.camera.rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / cfg.camera.rate_hz));
     let mut last_id = 0u64;
     let mut published = 0u64;
     let mut last_stats = Instant::now();
     let mut next_due = Instant::now();
-    loop {
-        if cfg.camera.frames > 0 && published >= cfg.camera.frames {
-            break;
-        }
+    while cfg.camera.frames == 0 || published < cfg.camera.frames {
+        acc.settle(&mut ctx)?;
         if let Some(p) = period {
-            let now = Instant::now();
-            if next_due > now && ctx.node.node().wait(next_due - now).is_err() {
+            if !sleep_until(&mut ctx, &mut acc, next_due)? {
                 break;
             }
             next_due = next_due.max(Instant::now() - p) + p;
-        } else if ctx.node.node().wait(Duration::ZERO).is_err() {
-            break;
+        } else {
+            // Unpaced: wait for room instead of refusing (back-pressure without loss).
+            while acc.full() {
+                if !ctx.node.sleep(LEDGER_TICK) {
+                    break;
+                }
+                acc.settle(&mut ctx)?;
+            }
+            if !ctx.node.sleep(Duration::ZERO) {
+                break;
+            }
         }
         // Frame ids are microsecond timestamps made strictly increasing: unique across restarts.
         let frame_id = (now_ns() / 1000).max(last_id + 1);
@@ -98,22 +156,24 @@ pub fn run(args: StageArgs) -> Result<()> {
             }
             Err(e) => Err(e),
         };
-        let mut announce = FrameHeader::new(
-            MessageKind::Announce,
-            frame_id,
-            cfg.camera.source_id,
-            &fallback_camera,
-            &cfg.cell.workspace,
-            now_ns(),
-        );
-        announce.stamp(Stamp::IngestPublished);
-        announce_pub.send_header(announce)?;
         ctx.stats.frames_in += 1;
         ctx.stats.last_frame_id = frame_id;
+        published += 1;
         let checked = frame
             .map_err(|e| (StatusCode::InvalidDepth, format!("{e:#}")))
             .and_then(|f| validate_frame(&f.depth, &f.camera).map(|_| f));
+        acc.settle(&mut ctx)?;
         match checked {
+            Ok(_) if acc.full() => {
+                let msg = format!(
+                    "refused at admission: {} frames in flight (pipeline.max_frames_in_flight); \
+                     the camera is faster than the pipeline",
+                    acc.ledger.in_flight()
+                );
+                tracing::debug!("frame {frame_id}: {msg}");
+                acc.publish_record(frame_id, StatusCode::Overload, Stage::CameraIngest, &msg)?;
+                ctx.stats.errors += 1;
+            }
             Ok(f) => {
                 let mut h = FrameHeader::new(
                     MessageKind::DepthFrame,
@@ -130,25 +190,21 @@ pub fn run(args: StageArgs) -> Result<()> {
                         Ok(())
                     })?
                     .ok();
+                if let Some(v) = acc
+                    .ledger
+                    .admit(frame_id, h.stamps_ns[Stamp::IngestPublished as usize])
+                {
+                    acc.publish_verdict(&mut ctx, &v)?;
+                }
                 ctx.stats.frames_out += 1;
             }
             Err((status, msg)) => {
+                // Ends here: the error record is the frame's outcome.
                 tracing::warn!("frame {frame_id}: {msg}");
-                let mut h = FrameHeader::new(
-                    MessageKind::DepthFrame,
-                    frame_id,
-                    cfg.camera.source_id,
-                    &fallback_camera,
-                    &cfg.cell.workspace,
-                    now_ns(),
-                )
-                .into_error(status, Stage::CameraIngest, &msg);
-                h.stamp(Stamp::IngestPublished);
-                depth_pub.send_header(h)?;
+                acc.publish_record(frame_id, status, Stage::CameraIngest, &msg)?;
                 ctx.stats.errors += 1;
             }
         }
-        published += 1;
         ctx.stats.busy_ns += started.elapsed().as_nanos() as u64;
         ctx.stats.dropped = depth_pub.dropped();
         if stats_due(&mut last_stats, cfg.pipeline.stats_interval_ms) {
@@ -158,18 +214,67 @@ pub fn run(args: StageArgs) -> Result<()> {
     ctx.stats.dropped = depth_pub.dropped();
     ctx.publish_stats();
     ctx.log_summary();
-    // Stay alive until stopped so late subscribers can still drain (the launcher stops us).
+    // A finite source: stay up, accounting for the frames still in flight, until stopped.
     if cfg.camera.frames > 0 {
-        while ctx.node.node().wait(Duration::from_millis(200)).is_ok() {}
+        while ctx.node.sleep(LEDGER_TICK) {
+            acc.settle(&mut ctx)?;
+        }
     }
     Ok(())
 }
 
+/// Waits (up to `camera.wait_for_subscribers_ms`) until the whole chain is attached, so the
+/// first frames are not published into the void. False on a termination signal.
+fn wait_for_chain(
+    ctx: &StageContext,
+    cfg: &PipelineConfig,
+    depth_pub: &FramePublisher<f32>,
+) -> bool {
+    let want_fusion = cfg.pipeline.workers.fusion as usize;
+    let want_selection = cfg.pipeline.workers.selection as usize;
+    let names = &ctx.node.names;
+    // Each stage creates its output publishers only once its inputs are attached
+    // (`StageContext::attach_inputs`), so the selection workers' pick publishers (besides this
+    // process's own) mean the whole chain is ready.
+    let picks_publishers = || {
+        ctx.node
+            .publisher_count::<PickRecord>(&names.picks())
+            .unwrap_or(1)
+            .saturating_sub(1)
+    };
+    let ready = ctx.node.wait_until(
+        Duration::from_millis(cfg.camera.wait_for_subscribers_ms),
+        || depth_pub.subscriber_count() >= want_fusion && picks_publishers() >= want_selection,
+    );
+    match ready {
+        None => return false,
+        Some(true) => {}
+        Some(false) => tracing::warn!(
+            "publishing before all stages are ready ({} of {want_fusion} grid-fusion workers \
+             subscribed, {} of {want_selection} grasp-selection workers publish picks)",
+            depth_pub.subscriber_count(),
+            picks_publishers()
+        ),
+    }
+    true
+}
+
+/// Sleeps until `due`, settling the ledger meanwhile; false on a termination signal.
+fn sleep_until(ctx: &mut StageContext, acc: &mut Accounting, due: Instant) -> Result<bool> {
+    loop {
+        let now = Instant::now();
+        if now >= due {
+            return Ok(ctx.node.sleep(Duration::ZERO));
+        }
+        if !ctx.node.sleep((due - now).min(LEDGER_TICK)) {
+            return Ok(false);
+        }
+        acc.settle(ctx)?;
+    }
+}
+
 /// Checks a source frame before it enters the pipeline; the status says what is wrong.
-fn validate_frame(
-    depth: &DepthImage,
-    camera: &psgrasp_geometry::CameraModel,
-) -> Result<(), (StatusCode, String)> {
+fn validate_frame(depth: &DepthImage, camera: &CameraModel) -> Result<(), (StatusCode, String)> {
     camera.validate().map_err(|e| {
         (
             StatusCode::InvalidCamera,

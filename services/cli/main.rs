@@ -214,7 +214,7 @@ fn up(config: PathBuf) -> Result<()> {
         cfg.pipeline.name,
         sup.processes.len()
     );
-    while node.node().wait(Duration::from_millis(100)).is_ok() {
+    while node.sleep(Duration::from_millis(100)) {
         for e in sup.poll()? {
             println!("{e}");
         }

@@ -1,13 +1,14 @@
-//! grasp-selection: grasp set → ranked executable picks ([`psgrasp_perception::SelectionStep`]),
-//! loss detection for every announced frame, and (worker 0) the next-pick server.
+//! grasp-selection: grasp set → ranked executable picks ([`psgrasp_perception::SelectionStep`])
+//! published as the frame's outcome, and (worker 0) the next-pick server. Frames the ledger
+//! already ended (camera-ingest's verdicts on `progress`) are not published a second time.
 use crate::inference::grid_view;
 use crate::next_pick::NextPickServer;
 use crate::stage::{run_stage, Output, Sent, Shard, Stage, StageArgs, StageContext, StepFailure};
 use anyhow::Result;
-use psgrasp_geometry::{GraspConfiguration, Workspace};
+use psgrasp_geometry::GraspConfiguration;
 use psgrasp_ipc::{
-    now_ns, FrameHeader, FramePublisher, FrameSubscriber, FrameTracker, GraspRecord, MessageKind,
-    PickRecord, Stamp, StatusCode, TrackerEvent,
+    FrameHeader, FrameSubscriber, GraspRecord, MessageKind, PickRecord, ProgressEvent,
+    ProgressKind, RecentIds, Stamp, StatusCode,
 };
 use psgrasp_perception::SelectionStep;
 use psgrasp_selection::Selection;
@@ -16,6 +17,8 @@ use std::time::Duration;
 
 /// Grids kept for matching grasp sets by frame id.
 const GRID_CACHE: usize = 16;
+/// Frames ended by the ledger that are remembered (to drop a late result of one).
+const VERDICT_MEMORY: usize = 4096;
 
 /// The grasp-selection step and its side inputs.
 pub struct GraspSelection<'a> {
@@ -24,12 +27,13 @@ pub struct GraspSelection<'a> {
     max_picks: usize,
     /// The frames of this worker (its share of the grid side input).
     shard: Shard,
-    announce: &'a FrameSubscriber<u8>,
+    progress: &'a FrameSubscriber<ProgressEvent>,
     grid: &'a FrameSubscriber<f32>,
     grids: BTreeMap<u64, (FrameHeader, Vec<f32>)>,
-    tracker: FrameTracker,
-    loss_timeout_ms: u64,
-    workspace: Workspace,
+    /// Frames the ledger ended with an error record.
+    ended_by_ledger: RecentIds,
+    /// When this worker started taking frames.
+    started_ns: u64,
     server: Option<NextPickServer<'a>>,
 }
 
@@ -83,13 +87,18 @@ impl Stage for GraspSelection<'_> {
     type Output = PickRecord;
     const STAGE: psgrasp_ipc::Stage = psgrasp_ipc::Stage::GraspSelection;
     const INPUT: MessageKind = MessageKind::GraspSet;
+    const ENTERED: Stamp = Stamp::InferenceEnd;
     const OUTPUT: MessageKind = MessageKind::SelectedGrasps;
     const START: Stamp = Stamp::SelectionStart;
     const END: Stamp = Stamp::SelectionEnd;
 
     fn before_frames(&mut self) -> Result<()> {
-        while let Some(s) = self.announce.receive()? {
-            self.tracker.announce(s.user_header().frame_id, now_ns());
+        while let Some(s) = self.progress.receive()? {
+            for e in s.payload() {
+                if e.kind() == Some(ProgressKind::Verdict) {
+                    self.ended_by_ledger.insert(e.frame_id);
+                }
+            }
         }
         while let Some(s) = self.grid.receive()? {
             let h = *s.user_header();
@@ -104,7 +113,7 @@ impl Stage for GraspSelection<'_> {
     }
 
     fn admit(&mut self, h: &FrameHeader) -> bool {
-        if self.tracker.complete(h.frame_id) == TrackerEvent::Duplicate {
+        if self.ended_by_ledger.contains(h.frame_id) {
             tracing::warn!(
                 "frame {}: result after it was reported lost; dropped",
                 h.frame_id
@@ -123,10 +132,14 @@ impl Stage for GraspSelection<'_> {
         let configs: Vec<GraspConfiguration> =
             payload.iter().map(GraspConfiguration::from).collect();
         let Some(grid) = self.grids.remove(&h.frame_id) else {
+            let why = if h.stamps_ns[Stamp::FusionEnd as usize] < self.started_ns {
+                "its normal grid was published before this grasp-selection worker (re)started"
+            } else {
+                "its normal grid never arrived"
+            };
             return Ok(Err(StepFailure::new(
                 StatusCode::SelectionFailed,
-                "normal grid of this frame never arrived (dropped under overload); no collision \
-                 check possible",
+                format!("{why}; no collision check possible"),
             )));
         };
         match self.select(&configs, &grid) {
@@ -135,25 +148,11 @@ impl Stage for GraspSelection<'_> {
         }
     }
 
-    fn after_frames(&mut self, out: &FramePublisher<PickRecord>, errors: &mut u64) -> Result<()> {
-        for lost in self.tracker.expire(now_ns()) {
-            let msg = format!(
-                "no result within {} ms: a stage died or dropped the frame under overload",
-                self.loss_timeout_ms
-            );
-            tracing::warn!("frame {lost}: {msg}");
-            let mut rec = FrameHeader {
-                frame_id: lost,
-                ..FrameHeader::default()
-            }
-            .into_error(StatusCode::Lost, Self::STAGE, &msg);
-            rec.kind = MessageKind::SelectedGrasps as u32;
-            rec.grid_dims = self.workspace.dims;
-            rec.voxel_size_m = self.workspace.voxel_size_m;
-            rec.stamp(Stamp::SelectionEnd);
-            out.send_header(rec)?;
-            *errors += 1;
-        }
+    fn after_frames(
+        &mut self,
+        _out: &psgrasp_ipc::FramePublisher<PickRecord>,
+        _errors: &mut u64,
+    ) -> Result<()> {
         if let Some(server) = self.server.as_mut() {
             server.serve()?;
         }
@@ -169,25 +168,20 @@ pub fn run(args: StageArgs) -> Result<()> {
     let step = SelectionStep::new(&cfg.cell)?;
     let grasps_sub = ctx.node.subscriber::<GraspRecord>(&names.grasps())?;
     let grid_sub = ctx.node.subscriber::<f32>(&names.grid())?;
-    let announce_sub = ctx
-        .node
-        .subscriber_with_buffer::<u8>(&names.announce(), 1024)?;
+    let progress_sub = ctx.node.progress_subscriber()?;
     let w = cfg.pipeline.workers;
     ctx.attach_inputs(&[
-        (&announce_sub, 1),
         (&grid_sub, w.fusion as usize),
         (&grasps_sub, w.inference as usize),
     ])?;
     let max_picks = cfg.cell.selection.top_k;
-    let picks_pub = ctx
-        .node
-        .publisher::<PickRecord>(&names.picks(), max_picks.max(1))?;
+    let picks_pub = ctx.node.outcome_publisher(max_picks)?;
     // Worker 0 answers "next pick" requests from the picks of all workers.
     let server_ports = match ctx.worker {
         0 => Some(NextPickServer::ports(&ctx.node)?),
         _ => None,
     };
-    let mut side = vec![announce_sub.listener(), grid_sub.listener()];
+    let mut side = vec![progress_sub.listener(), grid_sub.listener()];
     if let Some(ports) = &server_ports {
         side.extend(ports.listeners());
     }
@@ -195,16 +189,11 @@ pub fn run(args: StageArgs) -> Result<()> {
         step,
         max_picks,
         shard: ctx.shard(),
-        announce: &announce_sub,
+        progress: &progress_sub,
         grid: &grid_sub,
         grids: BTreeMap::new(),
-        tracker: FrameTracker::new(
-            ctx.workers as u64,
-            ctx.worker as u64,
-            cfg.pipeline.loss_timeout_ms * 1_000_000,
-        ),
-        loss_timeout_ms: cfg.pipeline.loss_timeout_ms,
-        workspace: cfg.cell.workspace,
+        ended_by_ledger: RecentIds::new(VERDICT_MEMORY),
+        started_ns: ctx.started_ns,
         server: server_ports.as_ref().map(NextPickServer::new),
     };
     tracing::info!("grasp-selection[{}] ready", ctx.worker);

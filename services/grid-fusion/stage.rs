@@ -33,6 +33,7 @@ impl Stage for GridFusion {
     type Output = f32;
     const STAGE: psgrasp_ipc::Stage = psgrasp_ipc::Stage::GridFusion;
     const INPUT: MessageKind = MessageKind::DepthFrame;
+    const ENTERED: Stamp = Stamp::IngestPublished;
     const OUTPUT: MessageKind = MessageKind::NormalGrid;
     const START: Stamp = Stamp::FusionStart;
     const END: Stamp = Stamp::FusionEnd;

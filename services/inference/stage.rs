@@ -39,6 +39,7 @@ impl Stage for Inference {
     type Output = GraspRecord;
     const STAGE: psgrasp_ipc::Stage = psgrasp_ipc::Stage::Inference;
     const INPUT: MessageKind = MessageKind::NormalGrid;
+    const ENTERED: Stamp = Stamp::FusionEnd;
     const OUTPUT: MessageKind = MessageKind::GraspSet;
     const START: Stamp = Stamp::InferenceStart;
     const END: Stamp = Stamp::InferenceEnd;

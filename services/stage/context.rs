@@ -5,7 +5,10 @@ use clap::Parser;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
 use psgrasp_config::PipelineConfig;
-use psgrasp_ipc::{now_ns, FramePublisher, InputPort, PipelineNode, Stage, StageStats};
+use psgrasp_ipc::{
+    now_ns, FrameHeader, FramePublisher, InputPort, PipelineNode, ProgressEvent, ProgressKind,
+    Stage, StageStats,
+};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -77,6 +80,10 @@ pub struct StageContext {
     /// The iceoryx2 node.
     pub node: PipelineNode,
     stats_pub: FramePublisher<StageStats>,
+    progress_pub: FramePublisher<ProgressEvent>,
+    /// When this worker started taking frames (set once its inputs are attached); frames
+    /// queued for it before are stale.
+    pub started_ns: u64,
     /// Counters published periodically.
     pub stats: StageStats,
 }
@@ -101,6 +108,7 @@ impl StageContext {
         let node = PipelineNode::new(&node_name, &config.pipeline.name, config.pipeline.channel)
             .with_context(|| format!("starting {node_name}"))?;
         let stats_pub = node.publisher_with_buffer::<StageStats>(&node.names.stats(), 1, 64)?;
+        let progress_pub = node.progress_publisher()?;
         let stats = StageStats {
             stage: stage as u32,
             worker: args.worker,
@@ -114,8 +122,48 @@ impl StageContext {
             config,
             node,
             stats_pub,
+            progress_pub,
+            started_ns: u64::MAX,
             stats,
         })
+    }
+
+    /// Reports on `progress` that this worker takes frames from now on: the frame ledger ends
+    /// the frames its previous instance held, and this instance drops them (see
+    /// [`psgrasp_ipc::is_stale`]).
+    pub fn report_started(&mut self) -> Result<()> {
+        self.started_ns = now_ns();
+        let event = ProgressEvent::new(
+            ProgressKind::Started,
+            self.stage,
+            self.worker,
+            0,
+            self.started_ns,
+        );
+        self.progress_pub
+            .send_slice(FrameHeader::default(), std::slice::from_ref(&event))?;
+        Ok(())
+    }
+
+    /// Reports on `progress` that frame `frame_id` left this stage with end stamp `end_ns`.
+    pub fn report_left(&self, frame_id: u64, end_ns: u64) {
+        self.report(ProgressKind::Left, frame_id, end_ns);
+    }
+
+    /// Reports on `progress` that the ledger ended frame `frame_id` (grasp-selection then
+    /// drops a late result of it).
+    pub fn report_verdict(&self, frame_id: u64) {
+        self.report(ProgressKind::Verdict, frame_id, now_ns());
+    }
+
+    fn report(&self, kind: ProgressKind, frame_id: u64, stamp_ns: u64) {
+        let event = ProgressEvent::new(kind, self.stage, self.worker, frame_id, stamp_ns);
+        if let Err(e) = self
+            .progress_pub
+            .send_slice(FrameHeader::default(), std::slice::from_ref(&event))
+        {
+            tracing::warn!("frame {frame_id}: progress report failed: {e}");
+        }
     }
 
     /// Start-up barrier: waits (up to `camera.wait_for_subscribers_ms`) until every input has at
@@ -124,7 +172,14 @@ impl StageContext {
     /// sends no frame before the whole chain is attached: iceoryx2 discards a delivery to a
     /// subscriber whose queue filled up before it attached. Returns false (after a warning) if
     /// the wait timed out, and an error on a termination signal.
-    pub fn attach_inputs(&self, inputs: &[(&dyn InputPort, usize)]) -> Result<bool> {
+    /// Reports the worker started ([`Self::report_started`]) once attached, timed out or not.
+    pub fn attach_inputs(&mut self, inputs: &[(&dyn InputPort, usize)]) -> Result<bool> {
+        let attached = self.wait_for_inputs(inputs)?;
+        self.report_started()?;
+        Ok(attached)
+    }
+
+    fn wait_for_inputs(&self, inputs: &[(&dyn InputPort, usize)]) -> Result<bool> {
         let timeout = Duration::from_millis(self.config.camera.wait_for_subscribers_ms);
         let ready = self.node.wait_until(timeout, || {
             let mut all = true;
@@ -171,7 +226,7 @@ impl StageContext {
     /// Publishes the current counters.
     pub fn publish_stats(&mut self) {
         self.stats.stamp_ns = now_ns();
-        let header = psgrasp_ipc::FrameHeader::default();
+        let header = FrameHeader::default();
         if let Err(e) = self
             .stats_pub
             .send_slice(header, std::slice::from_ref(&self.stats))
@@ -240,7 +295,8 @@ pub fn run_event_loop(
             .map_err(|e| anyhow::anyhow!("WaitSet: {e:?}"))?;
         match run {
             WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => {
-                return Ok(LoopExit::Signal)
+                psgrasp_ipc::note_termination();
+                return Ok(LoopExit::Signal);
             }
             _ => {}
         }

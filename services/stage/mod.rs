@@ -13,7 +13,9 @@ pub use context::{
 use anyhow::Result;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
-use psgrasp_ipc::{FrameHeader, FramePublisher, FrameSubscriber, MessageKind, Stamp, StatusCode};
+use psgrasp_ipc::{
+    is_stale, FrameHeader, FramePublisher, FrameSubscriber, MessageKind, Stamp, StatusCode,
+};
 use std::fmt::Debug;
 use std::time::{Duration, Instant};
 
@@ -36,9 +38,10 @@ impl StepFailure {
     }
 }
 
-/// Proof that a step published its output (only [`Output`]'s send methods make one).
+/// Proof that a step published its output (only [`Output`]'s send methods make one): the end
+/// stamp it carries.
 #[derive(Debug)]
-pub struct Sent(());
+pub struct Sent(u64);
 
 /// Where a step writes its one output message: the prepared header (forwarded from the input,
 /// start stamp and worker index set) and the output publisher. The end stamp is written at send.
@@ -58,7 +61,7 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> Output<'_, T> {
     pub fn send_slice(mut self, items: &[T]) -> Result<Sent> {
         self.header.stamp(self.end);
         self.publisher.send_slice(self.header, items)?;
-        Ok(Sent(()))
+        Ok(Sent(self.header.stamps_ns[self.end as usize]))
     }
 
     /// Fills `len` elements straight in shared memory and sends them (zero copy); the end stamp
@@ -71,7 +74,7 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> Output<'_, T> {
         let sent = self
             .publisher
             .send_with_stamp(self.header, len, fill, Some(self.end))?;
-        Ok(sent.map(|_| Sent(())))
+        Ok(sent.map(|h| Sent(h.stamps_ns[self.end as usize])))
     }
 }
 
@@ -86,6 +89,8 @@ pub trait Stage {
     const STAGE: psgrasp_ipc::Stage;
     /// The message kind read.
     const INPUT: MessageKind;
+    /// The input's stamp of when it entered this stage's queue (the upstream end stamp).
+    const ENTERED: Stamp;
     /// The message kind written.
     const OUTPUT: MessageKind;
     /// Stamped when the step starts.
@@ -180,6 +185,16 @@ pub fn run_stage<S: Stage>(
             }
             ctx.stats.frames_in += 1;
             ctx.stats.last_frame_id = h.frame_id;
+            if is_stale(h.stamps_ns[S::ENTERED as usize], ctx.started_ns) {
+                // Sent to this worker's previous instance (or to no one while it restarted):
+                // the frame ledger has already ended it as lost.
+                tracing::debug!(
+                    "frame {}: queued before this worker started; dropped",
+                    h.frame_id
+                );
+                ctx.stats.stale += 1;
+                continue;
+            }
             if !stage.admit(&h) {
                 continue;
             }
@@ -191,25 +206,31 @@ pub fn run_stage<S: Stage>(
             }
             stage.prepare(&mut out);
             let failure = if !h.is_ok() {
-                Some(StepFailure::new(h.status(), ""))
+                Err(StepFailure::new(h.status(), ""))
             } else if let Err(m) = h.check(S::INPUT) {
-                Some(StepFailure::new(StatusCode::ProtocolError, m))
+                Err(StepFailure::new(StatusCode::ProtocolError, m))
             } else {
                 let output = Output {
                     publisher: output,
                     header: out,
                     end: S::END,
                 };
-                stage.process(&h, sample.payload(), output)?.err()
+                stage.process(&h, sample.payload(), output)?
             };
             drop(sample);
-            match failure {
-                None => ctx.stats.frames_out += 1,
-                Some(f) => {
-                    output.send_header(error_record(&h, out, S::STAGE, &f, S::END))?;
-                    ctx.stats.errors += 1;
+            let end_ns = match failure {
+                Ok(Sent(end_ns)) => {
+                    ctx.stats.frames_out += 1;
+                    end_ns
                 }
-            }
+                Err(f) => {
+                    let rec = error_record(&h, out, S::STAGE, &f, S::END);
+                    output.send_header(rec)?;
+                    ctx.stats.errors += 1;
+                    rec.stamps_ns[S::END as usize]
+                }
+            };
+            ctx.report_left(h.frame_id, end_ns);
             ctx.stats.busy_ns += started.elapsed().as_nanos() as u64;
         }
         stage.after_frames(output, &mut ctx.stats.errors)?;

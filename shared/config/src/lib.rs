@@ -66,6 +66,8 @@ pub struct PipelineConfig {
 
 /// Longest duration setting, milliseconds (one day): in nanoseconds it still fits a `u64`.
 pub const MAX_DURATION_MS: u64 = 86_400_000;
+/// Most frames in flight (`pipeline.max_frames_in_flight`); outcome queues hold this many.
+pub const MAX_FRAMES_IN_FLIGHT: usize = psgrasp_ipc::OUTCOME_BUFFER / 2;
 /// Slowest camera rate other than 0 (one frame per 1000 s).
 pub const MIN_RATE_HZ: f64 = 1e-3;
 /// Fastest camera rate.
@@ -82,8 +84,14 @@ pub struct PipelineSection {
     pub channel: ChannelConfig,
     /// Worker processes per stage (frames are sharded by `frame_id % workers`).
     pub workers: WorkerCounts,
-    /// A frame with no result after this long is reported as `Lost`.
+    /// A frame with no result after this long is reported as `Lost` (frames held by a stage
+    /// that restarts are reported at once, when its new instance starts).
     pub loss_timeout_ms: u64,
+    /// Frames admitted by camera-ingest and not yet ended (picks or error record). At the
+    /// limit, a paced camera refuses its next frame with an `Overload` record and an unpaced
+    /// one (`rate_hz = 0`) waits. At most `channel.subscriber_buffer`, so no stage queue can
+    /// overflow.
+    pub max_frames_in_flight: usize,
     /// How often stages publish statistics.
     pub stats_interval_ms: u64,
     /// Restart a stage that died (launcher).
@@ -108,6 +116,7 @@ impl Default for PipelineSection {
             channel: ChannelConfig::default(),
             workers: WorkerCounts::default(),
             loss_timeout_ms: 10_000,
+            max_frames_in_flight: 4,
             stats_interval_ms: 1000,
             restart_on_failure: true,
             seed: 0,
@@ -340,6 +349,19 @@ impl PipelineConfig {
             return Err(bad(
                 "pipeline.channel.subscriber_buffer",
                 format!("{} must be in 1..=1024", p.channel.subscriber_buffer),
+            ));
+        }
+        if !(1..=p.channel.subscriber_buffer.min(MAX_FRAMES_IN_FLIGHT))
+            .contains(&p.max_frames_in_flight)
+        {
+            return Err(bad(
+                "pipeline.max_frames_in_flight",
+                format!(
+                    "{} must be in 1..={} (channel.subscriber_buffer, at most \
+                     {MAX_FRAMES_IN_FLIGHT}): deeper than a queue, frames would be dropped",
+                    p.max_frames_in_flight,
+                    p.channel.subscriber_buffer.min(MAX_FRAMES_IN_FLIGHT)
+                ),
             ));
         }
         let max_subs_needed = (w.fusion.max(w.inference).max(w.selection) + 2) as usize;

@@ -21,7 +21,7 @@ pub enum MessageKind {
     GraspSet = 3,
     /// Ranked executable picks ([`crate::PickRecord`]).
     SelectedGrasps = 4,
-    /// A frame announcement (header only): "this frame id entered the pipeline".
+    /// Reserved (frame announcements of protocol v1 before the frame ledger; never sent).
     Announce = 5,
 }
 
@@ -80,12 +80,16 @@ pub enum StatusCode {
     InferenceFailed = 4,
     /// Selection failed.
     SelectionFailed = 5,
-    /// No result arrived within the loss timeout: a stage died or dropped the frame under overload.
+    /// The frame was lost: the stage holding it restarted, or no result arrived within the loss
+    /// timeout (the message says which).
     Lost = 6,
     /// A message violated the protocol (wrong version, kind or size).
     ProtocolError = 7,
     /// The payload did not fit the shared-memory segment.
     PayloadTooLarge = 8,
+    /// Refused at admission: the pipeline already held `pipeline.max_frames_in_flight` frames
+    /// (a live camera faster than the pipeline).
+    Overload = 9,
 }
 
 impl StatusCode {
@@ -102,6 +106,7 @@ impl StatusCode {
             Lost,
             ProtocolError,
             PayloadTooLarge,
+            Overload,
         ]
         .into_iter()
         .find(|s| *s as u32 == v)

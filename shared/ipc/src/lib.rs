@@ -6,11 +6,11 @@
 //! | service            | payload element            | producer          |
 //! |--------------------|----------------------------|-------------------|
 //! | `<pipeline>/depth`    | `f32` depth in metres, row-major | camera-ingest |
-//! | `<pipeline>/announce` | none (header only)       | camera-ingest     |
 //! | `<pipeline>/grid`     | `f32`: 3·N normals (channel-major) then N normalised TSDF | grid-fusion |
 //! | `<pipeline>/grasps`   | [`GraspRecord`]          | inference         |
 //! | `<pipeline>/picks`    | [`PickRecord`]           | grasp-selection   |
 //! | `<pipeline>/stats`    | [`StageStats`] (fixed size) | every stage    |
+//! | `<pipeline>/progress` | [`ProgressEvent`] (one)  | every stage; read by camera-ingest's [`FrameLedger`] |
 //! | `<pipeline>/next-pick`| request-response [`NextPickRequest`] → [`NextPickResponse`] | grasp-selection |
 //!
 //! Each publish-subscribe service is paired with an event service of the same name; publishers
@@ -21,17 +21,18 @@
 #![warn(missing_docs)]
 
 pub mod header;
+pub mod ledger;
 pub mod records;
-pub mod tracker;
 pub mod transport;
 
 pub use header::{now_ns, FrameHeader, MessageKind, Stage, Stamp, StatusCode, PROTOCOL_VERSION};
+pub use ledger::{is_stale, FrameLedger, ProgressEvent, ProgressKind, RecentIds, Verdict};
 pub use records::{
     GraspRecord, NextPickMode, NextPickRequest, NextPickResponse, NextPickStatus, PickRecord,
     StageStats,
 };
-pub use tracker::{FrameTracker, TrackerEvent};
 pub use transport::{
-    cleanup_dead_nodes, ChannelConfig, DropPolicy, FramePublisher, FrameSubscriber, InputPort,
-    IpcError, PipelineNode, ServiceNames,
+    cleanup_dead_nodes, note_termination, termination_requested, ChannelConfig, DropPolicy,
+    FramePublisher, FrameSubscriber, InputPort, IpcError, PipelineNode, ServiceNames,
+    OUTCOME_BUFFER, PROGRESS_BUFFER,
 };

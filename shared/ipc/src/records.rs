@@ -136,8 +136,9 @@ pub struct StageStats {
     pub worker: u32,
     /// Process id.
     pub pid: u32,
-    /// Reserved, zero.
-    pub reserved: u32,
+    /// Frames dropped unprocessed because they were queued for this worker's previous
+    /// instance (the frame ledger reported them lost when this one started).
+    pub stale: u32,
     /// Messages received (own shard only).
     pub frames_in: u64,
     /// Successful outputs published.

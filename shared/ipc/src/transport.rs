@@ -1,6 +1,7 @@
 //! iceoryx2 plumbing: a node per process, publishers that write straight into shared memory,
 //! subscribers that sleep in a WaitSet, and the drop policy under overload.
 use crate::header::FrameHeader;
+use crate::{PickRecord, ProgressEvent};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -11,7 +12,7 @@ use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 use serde::{Deserialize, Serialize};
 use std::fmt::Debug;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -54,6 +55,27 @@ fn setup<E: Debug>(what: impl Into<String>) -> impl FnOnce(E) -> IpcError {
         detail: format!("{e:?}"),
     }
 }
+
+/// Latched termination request: iceoryx2 reports a SIGTERM/SIGINT to the first check only, so
+/// without the latch a second check (a later wait in the same process) would miss it.
+static TERMINATION_REQUESTED: AtomicBool = AtomicBool::new(false);
+
+/// True once this process received SIGTERM or SIGINT (seen by any [`PipelineNode::sleep`],
+/// [`PipelineNode::wait_until`] or [`note_termination`]).
+pub fn termination_requested() -> bool {
+    TERMINATION_REQUESTED.load(Ordering::Relaxed)
+}
+
+/// Records that a termination request was seen (e.g. by a WaitSet).
+pub fn note_termination() {
+    TERMINATION_REQUESTED.store(true, Ordering::Relaxed);
+}
+
+/// Outcomes a subscriber of `picks` can queue: at least twice the most frames in flight, so
+/// the ledger's error records for every frame in flight fit next to their picks.
+pub const OUTCOME_BUFFER: usize = 256;
+/// Progress reports a subscriber of `progress` can queue (a few per frame in flight).
+pub const PROGRESS_BUFFER: usize = 1024;
 
 /// What a publisher does when a subscriber's buffer is full.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -114,9 +136,9 @@ impl ServiceNames {
     pub fn depth(&self) -> String {
         format!("{}/depth", self.prefix)
     }
-    /// Frame announcements.
-    pub fn announce(&self) -> String {
-        format!("{}/announce", self.prefix)
+    /// Progress reports for the frame ledger ([`crate::ProgressEvent`]).
+    pub fn progress(&self) -> String {
+        format!("{}/progress", self.prefix)
     }
     /// Normal grids.
     pub fn grid(&self) -> String {
@@ -177,6 +199,19 @@ impl PipelineNode {
         &self.node
     }
 
+    /// Sleeps for `d` (0: only checks); false once a termination signal arrived (now or
+    /// earlier in this process).
+    pub fn sleep(&self, d: Duration) -> bool {
+        if termination_requested() {
+            return false;
+        }
+        if self.node.wait(d).is_err() {
+            note_termination();
+            return false;
+        }
+        true
+    }
+
     /// Waits in 10 ms steps until `ready()` holds or `timeout` passes. Returns whether it held,
     /// or `None` when a termination signal arrived meanwhile.
     pub fn wait_until(&self, timeout: Duration, mut ready: impl FnMut() -> bool) -> Option<bool> {
@@ -188,7 +223,7 @@ impl PipelineNode {
             if std::time::Instant::now() >= deadline {
                 return Some(false);
             }
-            if self.node.wait(Duration::from_millis(10)).is_err() {
+            if !self.sleep(Duration::from_millis(10)) {
                 return None;
             }
         }
@@ -210,11 +245,18 @@ impl PipelineNode {
         history: usize,
         buffer: usize,
     ) -> Result<PubSubFactory<ipc::Service, [T], FrameHeader>, IpcError> {
+        // The progress service has a publisher in every process (and briefly a dead one per
+        // restarting worker): room for all.
+        let max_publishers = if service == self.names.progress() {
+            self.channel.max_publishers * 3 + 2
+        } else {
+            self.channel.max_publishers
+        };
         self.node
             .service_builder(&service_name(service)?)
             .publish_subscribe::<[T]>()
             .user_header::<FrameHeader>()
-            .max_publishers(self.channel.max_publishers)
+            .max_publishers(max_publishers)
             .max_subscribers(self.channel.max_subscribers)
             .subscriber_max_buffer_size(buffer)
             .history_size(history)
@@ -323,6 +365,30 @@ impl PipelineNode {
         })
     }
 
+    /// A publisher of frame outcomes (picks or error records) on `picks`; its subscribers may
+    /// queue [`OUTCOME_BUFFER`] outcomes.
+    pub fn outcome_publisher(
+        &self,
+        max_picks: usize,
+    ) -> Result<FramePublisher<PickRecord>, IpcError> {
+        self.publisher_with_buffer(&self.names.picks(), max_picks.max(1), OUTCOME_BUFFER)
+    }
+
+    /// A subscriber of frame outcomes (picks or error records), [`OUTCOME_BUFFER`] deep.
+    pub fn outcome_subscriber(&self) -> Result<FrameSubscriber<PickRecord>, IpcError> {
+        self.subscriber_with_buffer(&self.names.picks(), OUTCOME_BUFFER)
+    }
+
+    /// A publisher of progress reports for the frame ledger.
+    pub fn progress_publisher(&self) -> Result<FramePublisher<ProgressEvent>, IpcError> {
+        self.publisher_with_buffer(&self.names.progress(), 1, PROGRESS_BUFFER)
+    }
+
+    /// A subscriber of progress reports, [`PROGRESS_BUFFER`] deep.
+    pub fn progress_subscriber(&self) -> Result<FrameSubscriber<ProgressEvent>, IpcError> {
+        self.subscriber_with_buffer(&self.names.progress(), PROGRESS_BUFFER)
+    }
+
     /// A subscriber of `[T]` slices on `service`, connected immediately.
     pub fn subscriber<T: Debug + ZeroCopySend + 'static>(
         &self,
@@ -378,18 +444,33 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
         len: usize,
         fill: impl FnOnce(&mut [T]) -> Result<(), E>,
     ) -> Result<Result<usize, E>, IpcError> {
-        self.send_with_stamp(header, len, fill, None)
+        Ok(self
+            .send_inner(header, len, fill, None)?
+            .map(|(delivered, _)| delivered))
     }
 
     /// Like [`Self::send_with`], recording `end_stamp` in the header once `fill` has finished
-    /// (so the stage's processing time includes the work done inside the loan).
+    /// (so the stage's processing time includes the work done inside the loan). Returns the
+    /// header as sent.
     pub fn send_with_stamp<E>(
+        &self,
+        header: FrameHeader,
+        len: usize,
+        fill: impl FnOnce(&mut [T]) -> Result<(), E>,
+        end_stamp: Option<crate::Stamp>,
+    ) -> Result<Result<FrameHeader, E>, IpcError> {
+        Ok(self
+            .send_inner(header, len, fill, end_stamp)?
+            .map(|(_, header)| header))
+    }
+
+    fn send_inner<E>(
         &self,
         mut header: FrameHeader,
         len: usize,
         fill: impl FnOnce(&mut [T]) -> Result<(), E>,
         end_stamp: Option<crate::Stamp>,
-    ) -> Result<Result<usize, E>, IpcError> {
+    ) -> Result<Result<(usize, FrameHeader), E>, IpcError> {
         let mut sample = self.publisher.loan_slice(len).map_err(|e| IpcError::Send {
             service: self.service.clone(),
             detail: format!("loan of {len} elements: {e:?}"),
@@ -426,7 +507,7 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
                 header.frame_id
             );
         }
-        Ok(Ok(delivered))
+        Ok(Ok((delivered, header)))
     }
 
     /// Sends a copy of `items`.
