@@ -2,6 +2,8 @@
 //! (its dead iceoryx2 node is cleaned up, the others keep running), and shutdown stops every
 //! process and leaves no shared-memory residue.
 use anyhow::{Context, Result};
+use iceoryx2::node::NodeView;
+use iceoryx2::prelude::*;
 use psgrasp_config::PipelineConfig;
 use psgrasp_ipc::{cleanup_dead_nodes, Stage};
 use std::path::{Path, PathBuf};
@@ -26,6 +28,8 @@ pub struct StageProcess {
     restart_due: Option<Instant>,
     /// Died more than `max_restarts` times within the window: not restarted again. The reason.
     pub gave_up: Option<String>,
+    /// Asked to stop ([`Supervisor::stop`]): not restarted whatever its exit.
+    stopping: bool,
 }
 
 impl StageProcess {
@@ -43,7 +47,13 @@ pub struct Supervisor {
     /// The processes, consumers first.
     pub processes: Vec<StageProcess>,
     quiet: bool,
+    /// A config file written for this run ([`Supervisor::launch`]), removed at shutdown.
+    temp_config: Option<PathBuf>,
 }
+
+/// Environment variable through which a stage learns its launcher's pid (see
+/// [`crate::stage::end_with_parent`]).
+pub const PARENT_PID_ENV: &str = "PSGRASP_PARENT_PID";
 
 /// Directory holding the stage binaries: next to the running executable (also for test binaries
 /// under `target/*/deps`).
@@ -62,6 +72,7 @@ impl Supervisor {
     pub fn start(config_path: &Path, bin_dir: &Path, quiet: bool) -> Result<Self> {
         let config = PipelineConfig::load(config_path)?;
         cleanup_dead_nodes();
+        refuse_running_pipeline(&config.pipeline.name)?;
         check_shm_space(&config)?;
         let w = config.pipeline.workers;
         let mut processes = Vec::new();
@@ -81,6 +92,7 @@ impl Supervisor {
                     finished: false,
                     restart_due: None,
                     gave_up: None,
+                    stopping: false,
                 });
             }
         }
@@ -90,11 +102,28 @@ impl Supervisor {
             bin_dir: bin_dir.to_path_buf(),
             processes,
             quiet,
+            temp_config: None,
         };
         for i in 0..sup.processes.len() {
             sup.spawn(i)?;
         }
         Ok(sup)
+    }
+
+    /// Starts the pipeline of `cfg` from a private temporary config file, which the supervisor
+    /// removes at shutdown.
+    pub fn launch(cfg: &PipelineConfig, bin_dir: &Path, quiet: bool) -> Result<Self> {
+        let path = write_temp_config(cfg, &cfg.pipeline.name)?;
+        match Self::start(&path, bin_dir, quiet) {
+            Ok(mut sup) => {
+                sup.temp_config = Some(path);
+                Ok(sup)
+            }
+            Err(e) => {
+                let _ = std::fs::remove_file(&path);
+                Err(e)
+            }
+        }
     }
 
     /// The loaded configuration.
@@ -110,6 +139,7 @@ impl Supervisor {
             .arg(&self.config_path)
             .arg("--worker")
             .arg(p.worker.to_string())
+            .env(PARENT_PID_ENV, std::process::id().to_string())
             .stdin(Stdio::null());
         if self.quiet {
             cmd.env(
@@ -156,6 +186,11 @@ impl Supervisor {
             };
             let Some(status) = status else { continue };
             p.child = None;
+            if p.stopping {
+                p.finished = true;
+                events.push(format!("{name} stopped ({status})"));
+                continue;
+            }
             if status.success() {
                 p.finished = true;
                 events.push(format!("{name} exited normally"));
@@ -218,8 +253,29 @@ impl Supervisor {
         Ok(None)
     }
 
+    /// True while a stage waits for its restart.
+    pub fn restart_pending(&self) -> bool {
+        self.processes.iter().any(|p| p.restart_due.is_some())
+    }
+
+    /// Asks one stage process to stop (SIGTERM); it is not restarted.
+    pub fn stop(&mut self, stage: Stage, worker: u32) {
+        for p in &mut self.processes {
+            if p.stage == stage && p.worker == worker {
+                p.stopping = true;
+                p.restart_due = None;
+                if let Some(c) = &p.child {
+                    // SAFETY: plain kill(2) on a child pid we own.
+                    unsafe {
+                        libc::kill(c.id() as i32, libc::SIGTERM);
+                    }
+                }
+            }
+        }
+    }
+
     /// Stops everything: SIGTERM (camera first), wait up to `grace`, then SIGKILL; then removes
-    /// any shared-memory resources of dead nodes.
+    /// any shared-memory resources of dead nodes and the temporary config file.
     pub fn shutdown(&mut self, grace: Duration) {
         for p in self.processes.iter().rev() {
             if let Some(c) = &p.child {
@@ -247,16 +303,67 @@ impl Supervisor {
                 }
             }
         }
+        for p in &mut self.processes {
+            p.restart_due = None;
+        }
         cleanup_dead_nodes();
+        if let Some(path) = self.temp_config.take() {
+            let _ = std::fs::remove_file(path);
+        }
     }
 }
 
 impl Drop for Supervisor {
     fn drop(&mut self) {
-        if self.any_running() {
+        if self.any_running() || self.temp_config.is_some() {
             self.shutdown(Duration::from_secs(3));
         }
     }
+}
+
+/// Writes `cfg` to a private temp file the stage processes can read.
+pub fn write_temp_config(cfg: &PipelineConfig, tag: &str) -> Result<PathBuf> {
+    let dir = std::env::temp_dir().join("psgrasp");
+    std::fs::create_dir_all(&dir)?;
+    let path = dir.join(format!("{tag}-{}.toml", std::process::id()));
+    std::fs::write(&path, cfg.to_toml())?;
+    Ok(path)
+}
+
+/// The live stage nodes of pipeline `name` (`<name>-<stage>-<worker>`).
+pub fn running_stage_nodes(name: &str) -> Vec<String> {
+    let mut found = Vec::new();
+    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::Alive(view) = &state {
+            if let Some(d) = view.details() {
+                let node = d.name().as_str();
+                let is_stage = Stage::ALL.iter().any(|s| {
+                    node.strip_prefix(&format!("{name}-{}-", s.name()))
+                        .is_some_and(|w| !w.is_empty() && w.bytes().all(|b| b.is_ascii_digit()))
+                });
+                if is_stage {
+                    found.push(node.to_string());
+                }
+            }
+        }
+        CallbackProgression::Continue
+    });
+    found.sort();
+    found
+}
+
+/// Refuses to start pipeline `name` while stages of it are alive (an earlier launcher's, or
+/// orphans of one that was killed): two pipelines on the same services would handle every frame
+/// twice.
+pub fn refuse_running_pipeline(name: &str) -> Result<()> {
+    let nodes = running_stage_nodes(name);
+    anyhow::ensure!(
+        nodes.is_empty(),
+        "pipeline '{name}' is already running (live stage nodes: {}); stop it first, or give this \
+         one another pipeline.name",
+        nodes.join(", ")
+    );
+    Ok(())
 }
 
 /// The wait before restart number `earlier + 1` within the window: `base_ms · 2^earlier`, at most

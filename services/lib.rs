@@ -18,6 +18,7 @@ pub mod launcher;
 pub mod monitor;
 #[path = "next-pick/mod.rs"]
 pub mod next_pick;
+pub mod run;
 #[path = "camera-ingest/sources.rs"]
 pub mod sources;
 pub mod stage;

@@ -2,8 +2,8 @@
 //! outcome (picks or an error record) and the stages' statistics.
 use anyhow::Result;
 use psgrasp_ipc::{
-    ChannelConfig, FrameHeader, FrameSubscriber, PickRecord, PipelineNode, Stage, StageStats,
-    StatusCode,
+    ChannelConfig, FrameHeader, FrameSubscriber, PickRecord, PipelineNode, ProgressEvent,
+    ProgressKind, Stage, StageStats, StatusCode,
 };
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
@@ -37,8 +37,19 @@ pub struct PipelineMonitor {
     node: PipelineNode,
     picks: FrameSubscriber<PickRecord>,
     stats: FrameSubscriber<StageStats>,
+    progress: FrameSubscriber<ProgressEvent>,
     /// Latest statistics per (stage, worker).
     pub latest_stats: HashMap<(u32, u32), StageStats>,
+}
+
+/// What the stages reported on `progress` since the last call (see
+/// [`PipelineMonitor::drain_progress`]).
+#[derive(Debug, Default, Clone)]
+pub struct ProgressSummary {
+    /// Frames camera-ingest admitted into the pipeline.
+    pub admitted: Vec<u64>,
+    /// Workers that started taking frames: (stage, worker, pid, when in ns).
+    pub started: Vec<(Stage, u32, u32, u64)>,
 }
 
 impl PipelineMonitor {
@@ -47,10 +58,12 @@ impl PipelineMonitor {
         let node = PipelineNode::new(node_name, pipeline, channel)?;
         let picks = node.outcome_subscriber()?;
         let stats = node.subscriber_with_buffer::<StageStats>(&node.names.stats(), 64)?;
+        let progress = node.progress_subscriber()?;
         Ok(Self {
             node,
             picks,
             stats,
+            progress,
             latest_stats: HashMap::new(),
         })
     }
@@ -86,6 +99,23 @@ impl PipelineMonitor {
             }
         }
         Ok(())
+    }
+
+    /// Reads queued progress reports: admitted frames and (re)started workers.
+    pub fn drain_progress(&mut self) -> Result<ProgressSummary> {
+        let mut out = ProgressSummary::default();
+        while let Some(s) = self.progress.receive()? {
+            for e in s.payload() {
+                match (e.kind(), Stage::from_u32(e.stage)) {
+                    (Some(ProgressKind::Admitted), _) => out.admitted.push(e.frame_id),
+                    (Some(ProgressKind::Started), Some(stage)) => {
+                        out.started.push((stage, e.worker, e.pid, e.stamp_ns))
+                    }
+                    _ => {}
+                }
+            }
+        }
+        Ok(out)
     }
 
     /// The underlying node (for its signal-aware `wait`).

@@ -1,23 +1,11 @@
 //! Load tools: push frames through a live pipeline and report throughput, latency percentiles,
 //! drops and errors; and compare the shared-memory transport with a copying Unix socket.
-use crate::launcher::Supervisor;
-use crate::monitor::{FrameOutcome, PipelineMonitor};
+use crate::monitor::FrameOutcome;
+use crate::run::RunReport;
 use anyhow::Result;
-use psgrasp_config::PipelineConfig;
 use psgrasp_ipc::{ChannelConfig, FrameHeader, PipelineNode, Stamp, StatusCode};
-use std::collections::BTreeMap;
 use std::io::{Read, Write};
-use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
-
-/// Writes `cfg` to a private temp file the stage processes can read.
-pub fn write_temp_config(cfg: &PipelineConfig, tag: &str) -> Result<PathBuf> {
-    let dir = std::env::temp_dir().join("psgrasp");
-    std::fs::create_dir_all(&dir)?;
-    let path = dir.join(format!("{tag}-{}.toml", std::process::id()));
-    std::fs::write(&path, cfg.to_toml())?;
-    Ok(path)
-}
+use std::time::Duration;
 
 /// Percentile (nearest rank) of sorted values.
 pub fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -26,49 +14,6 @@ pub fn percentile(sorted: &[f64], p: f64) -> f64 {
     }
     let rank = ((p / 100.0) * sorted.len() as f64).ceil().max(1.0) as usize;
     sorted[rank.min(sorted.len()) - 1]
-}
-
-/// Result of running frames through a live pipeline.
-#[derive(Debug)]
-pub struct RunReport {
-    /// All outcomes, by frame id.
-    pub outcomes: BTreeMap<u64, FrameOutcome>,
-    /// Wall time from start of the first frame to the last outcome.
-    pub wall: Duration,
-}
-
-/// Starts the pipeline of `cfg` and collects `frames` outcomes (or stops after `timeout`).
-pub fn run_frames(
-    cfg: &PipelineConfig,
-    frames: u64,
-    timeout: Duration,
-    bin_dir: &Path,
-) -> Result<(RunReport, Supervisor)> {
-    let path = write_temp_config(cfg, &cfg.pipeline.name)?;
-    let mut monitor = PipelineMonitor::connect(
-        &format!("{}-monitor", cfg.pipeline.name),
-        &cfg.pipeline.name,
-        cfg.pipeline.channel,
-    )?;
-    let mut sup = Supervisor::start(&path, bin_dir, true)?;
-    let start = Instant::now();
-    let mut outcomes = BTreeMap::new();
-    while (outcomes.len() as u64) < frames && start.elapsed() < timeout {
-        for e in sup.poll()? {
-            tracing::info!("{e}");
-        }
-        if let Some(o) = monitor.next_outcome(Duration::from_millis(100))? {
-            outcomes.insert(o.frame_id(), o);
-        }
-    }
-    monitor.drain_stats()?;
-    Ok((
-        RunReport {
-            outcomes,
-            wall: start.elapsed(),
-        },
-        sup,
-    ))
 }
 
 fn stage_spans(h: &FrameHeader) -> [(&'static str, f64); 5] {
@@ -100,29 +45,38 @@ fn stage_spans(h: &FrameHeader) -> [(&'static str, f64); 5] {
 }
 
 /// Prints the stress report as Markdown tables.
-pub fn print_report(report: &RunReport, frames: u64) {
+pub fn print_report(report: &RunReport) {
     let ok: Vec<&FrameOutcome> = report
         .outcomes
         .values()
         .filter(|o| o.status() == StatusCode::Ok)
         .collect();
-    let mut by_status: BTreeMap<String, usize> = BTreeMap::new();
-    for o in report.outcomes.values() {
-        *by_status.entry(format!("{:?}", o.status())).or_default() += 1;
-    }
-    let missing = frames.saturating_sub(report.outcomes.len() as u64);
-    println!("\n## Pipeline run\n");
-    println!("| frames sent | outcomes | ok | error records | unaccounted | wall (s) | throughput (frames/s) |");
-    println!("|---|---|---|---|---|---|---|");
+    let sent = report.sent();
     println!(
-        "| {frames} | {} | {} | {} | {missing} | {:.2} | {:.2} |",
+        "\n## Pipeline run{}\n",
+        if report.interrupted {
+            " (interrupted)"
+        } else {
+            ""
+        }
+    );
+    println!("| frames sent | outcomes | ok | error records | unaccounted | second outcomes | restarts | wall (s) | throughput (frames/s) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    println!(
+        "| {sent} | {} | {} | {} | {} | {} | {} | {:.2} | {:.2} |",
         report.outcomes.len(),
         ok.len(),
         report.outcomes.len() - ok.len(),
+        report.unaccounted().len(),
+        report.second_outcomes,
+        report.restarts,
         report.wall.as_secs_f64(),
         report.outcomes.len() as f64 / report.wall.as_secs_f64().max(1e-9)
     );
-    println!("\nOutcomes by status: {by_status:?}");
+    println!("\nOutcomes by status: {:?}", report.by_status());
+    if !report.kills.is_empty() {
+        print_kills(report);
+    }
     println!("\n| span (ms) | p50 | p90 | p99 | max |\n|---|---|---|---|---|");
     let names = [
         "grid-fusion",
@@ -277,6 +231,44 @@ pub fn print_transport_table(figures: &[TransportFigure]) {
             percentile(&f.latencies_us, 90.0),
             percentile(&f.latencies_us, 99.0),
             1e6 / p50
+        );
+    }
+}
+
+/// Prints the kills of a chaos drill: per stage, how long until the new instance took frames
+/// and until picks of a frame admitted after it came back.
+fn print_kills(report: &RunReport) {
+    let ms = |d: Option<Duration>| {
+        d.map_or("–".to_string(), |d| {
+            format!("{:.0}", d.as_secs_f64() * 1e3)
+        })
+    };
+    println!("\n## Chaos: kills (SIGKILL) and recovery\n");
+    println!("| stage | kills | restarted (ms) p50 / max | picks again (ms) p50 / max | never recovered |");
+    println!("|---|---|---|---|---|");
+    for stage in psgrasp_ipc::Stage::ALL {
+        let kills: Vec<_> = report.kills.iter().filter(|k| k.stage == stage).collect();
+        if kills.is_empty() {
+            continue;
+        }
+        let stat = |f: &dyn Fn(&crate::run::Kill) -> Option<Duration>| {
+            let mut v: Vec<f64> = kills
+                .iter()
+                .filter_map(|k| f(k))
+                .map(|d| d.as_secs_f64() * 1e3)
+                .collect();
+            v.sort_by(f64::total_cmp);
+            let p50 = (!v.is_empty()).then(|| Duration::from_secs_f64(percentile(&v, 50.0) / 1e3));
+            let max = v.last().map(|m| Duration::from_secs_f64(m / 1e3));
+            format!("{} / {}", ms(p50), ms(max))
+        };
+        println!(
+            "| {} | {} | {} | {} | {} |",
+            stage.name(),
+            kills.len(),
+            stat(&|k| k.restarted_after),
+            stat(&|k| k.recovered_after),
+            kills.iter().filter(|k| k.recovered_after.is_none()).count()
         );
     }
 }

@@ -2,10 +2,11 @@
 //! Each test uses its own pipeline name, so tests run in parallel without interfering.
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
+use psgrasp::launcher::write_temp_config;
 use psgrasp::launcher::Supervisor;
 use psgrasp::monitor::PipelineMonitor;
+use psgrasp::run::run_frames;
 use psgrasp::sources::save_depth_npy;
-use psgrasp::stress::{run_frames, write_temp_config};
 use psgrasp_config::{PipelineConfig, PoseConfig, SourceKind};
 use psgrasp_inference::BackendConfig;
 use psgrasp_ipc::{DropPolicy, Stage, Stamp, StatusCode};

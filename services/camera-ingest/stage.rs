@@ -113,6 +113,7 @@ pub fn run(args: StageArgs) -> Result<()> {
     if !wait_for_chain(&ctx, &cfg, &depth_pub) {
         return Ok(());
     }
+    ctx.report_started()?;
     tracing::info!(
         "camera-ingest: source {} at {} Hz, at most {} frames in flight",
         source.name(),
@@ -190,10 +191,9 @@ pub fn run(args: StageArgs) -> Result<()> {
                         Ok(())
                     })?
                     .ok();
-                if let Some(v) = acc
-                    .ledger
-                    .admit(frame_id, h.stamps_ns[Stamp::IngestPublished as usize])
-                {
+                let published_ns = h.stamps_ns[Stamp::IngestPublished as usize];
+                ctx.report_admitted(frame_id, published_ns);
+                if let Some(v) = acc.ledger.admit(frame_id, published_ns) {
                     acc.publish_verdict(&mut ctx, &v)?;
                 }
                 ctx.stats.frames_out += 1;

@@ -2,7 +2,7 @@
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use psgrasp::launcher::{default_bin_dir, Supervisor};
-use psgrasp::stress;
+use psgrasp::{run, stress};
 use psgrasp_config::PipelineConfig;
 use psgrasp_ipc::{NextPickStatus, PipelineNode, StatusCode};
 use std::path::PathBuf;
@@ -60,6 +60,17 @@ enum Command {
         /// Messages per payload size in the transport comparison (0 = skip it).
         #[arg(long, default_value_t = 300)]
         transport_iterations: usize,
+        /// Chaos drill: SIGKILL one stage every SECS seconds, rotating over the four stages,
+        /// while the camera runs until `--frames` frames entered; reports outcomes by status,
+        /// unaccounted frames, restarts and recovery times.
+        #[arg(long, value_name = "SECS")]
+        chaos: Option<f64>,
+        /// Seed of the chaos drill's worker choice.
+        #[arg(long, default_value_t = 0)]
+        chaos_seed: u64,
+        /// Longest run in seconds (a chaos drill then stops killing and winds down).
+        #[arg(long, default_value_t = 600)]
+        timeout: u64,
     },
     /// Validate a configuration file and print it with all defaults filled in.
     CheckConfig {
@@ -110,12 +121,26 @@ fn run(cli: Cli) -> Result<()> {
             rate,
             inference_workers,
             transport_iterations,
+            chaos,
+            chaos_seed,
+            timeout,
         } => {
             let mut cfg = PipelineConfig::load(&config)?;
             cfg.pipeline.name = format!("stress-{}", std::process::id());
-            cfg.camera.frames = frames;
+            // A drill's camera runs until stopped: a restarted camera-ingest would count anew.
+            cfg.camera.frames = if chaos.is_some() { 0 } else { frames };
             cfg.camera.rate_hz = rate;
             cfg.camera.synthetic.frames_per_scene = frames.max(1);
+            let chaos = match chaos {
+                Some(secs) if !(secs.is_finite() && secs >= 0.5) => {
+                    anyhow::bail!("--chaos {secs}: the time between kills must be at least 0.5 s")
+                }
+                Some(secs) => Some(run::ChaosPlan {
+                    every: Duration::from_secs_f64(secs),
+                    seed: chaos_seed,
+                }),
+                None => None,
+            };
             if let Some(n) = inference_workers {
                 cfg.pipeline.workers.inference = n;
             }
@@ -128,10 +153,17 @@ fn run(cli: Cli) -> Result<()> {
                 cfg.pipeline.workers.selection,
                 cfg.pipeline.channel.drop_policy
             );
-            let timeout = Duration::from_secs(600);
-            let (report, mut sup) = stress::run_frames(&cfg, frames, timeout, &default_bin_dir())?;
+            let opts = run::RunOptions {
+                frames,
+                timeout: Duration::from_secs(timeout),
+                chaos,
+            };
+            let (report, mut sup) = run::run_pipeline(&cfg, opts, &default_bin_dir())?;
             sup.shutdown(Duration::from_secs(3));
-            stress::print_report(&report, frames);
+            stress::print_report(&report);
+            if report.interrupted {
+                anyhow::bail!("interrupted");
+            }
             if transport_iterations > 0 {
                 let figures = stress::compare_transports(
                     &[1_228_800, 4 * 262_144 * 4],
@@ -248,7 +280,7 @@ fn demo(config: PathBuf, frames: u64, seed: u64, top: usize) -> Result<()> {
         frames, cfg.camera.synthetic.objects
     );
     let (report, mut sup) =
-        stress::run_frames(&cfg, frames, Duration::from_secs(300), &default_bin_dir())?;
+        run::run_frames(&cfg, frames, Duration::from_secs(300), &default_bin_dir())?;
     sup.shutdown(Duration::from_secs(3));
     anyhow::ensure!(
         report.outcomes.len() as u64 == frames,

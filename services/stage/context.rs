@@ -92,6 +92,8 @@ impl StageContext {
     /// Loads the config, validates the worker index and creates the node `<pipeline>-<stage>-<worker>`.
     pub fn new(stage: Stage, args: &StageArgs) -> Result<Self> {
         let config = PipelineConfig::load(&args.config)?;
+        // Started by hand or by a launcher: either way /dev/shm must hold the buffers.
+        crate::launcher::check_shm_space(&config)?;
         let workers = match stage {
             Stage::CameraIngest => 1,
             Stage::GridFusion => config.pipeline.workers.fusion,
@@ -154,6 +156,11 @@ impl StageContext {
     /// drops a late result of it).
     pub fn report_verdict(&self, frame_id: u64) {
         self.report(ProgressKind::Verdict, frame_id, now_ns());
+    }
+
+    /// Reports on `progress` that camera-ingest admitted frame `frame_id` at `stamp_ns`.
+    pub fn report_admitted(&self, frame_id: u64, stamp_ns: u64) {
+        self.report(ProgressKind::Admitted, frame_id, stamp_ns);
     }
 
     fn report(&self, kind: ProgressKind, frame_id: u64, stamp_ns: u64) {
@@ -312,10 +319,36 @@ pub fn run_event_loop(
     result.map(|_| LoopExit::Done)
 }
 
-/// Runs a stage's `main`: logging, and an exit code with a clear message on failure.
+/// Makes this process end (SIGTERM, handled like any stop request) when the process that
+/// started it dies, however it dies (Linux `PR_SET_PDEATHSIG`). A launcher passes its pid in
+/// [`crate::launcher::PARENT_PID_ENV`]; if that process is already gone, this returns an error.
+pub fn end_with_parent() -> Result<()> {
+    // SAFETY: prctl with PR_SET_PDEATHSIG takes a signal number; getppid cannot fail.
+    let parent = unsafe {
+        libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+        libc::getppid()
+    };
+    if let Some(launcher) = std::env::var(crate::launcher::PARENT_PID_ENV)
+        .ok()
+        .and_then(|v| v.parse::<i32>().ok())
+    {
+        anyhow::ensure!(
+            parent == launcher,
+            "the launcher (pid {launcher}) that started this stage is gone"
+        );
+    }
+    Ok(())
+}
+
+/// Runs a stage's `main`: logging, ending with the parent, and an exit code with a clear
+/// message on failure.
 pub fn stage_main(stage: Stage, run: fn(StageArgs) -> Result<()>) -> std::process::ExitCode {
     init_logging();
     let args = StageArgs::parse();
+    if let Err(e) = end_with_parent() {
+        tracing::error!("{} not started: {e:#}", stage.name());
+        return std::process::ExitCode::FAILURE;
+    }
     match run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

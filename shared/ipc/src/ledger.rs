@@ -27,6 +27,8 @@ pub enum ProgressKind {
     Started = 2,
     /// The ledger ended a frame with an error record (stages drop later results of it).
     Verdict = 3,
+    /// camera-ingest admitted a frame into the pipeline (for observers: it must end).
+    Admitted = 4,
 }
 
 /// One progress report on `<pipeline>/progress` (header-only traffic, deep queue).
@@ -254,7 +256,7 @@ impl FrameLedger {
             match e.kind() {
                 Some(ProgressKind::Left) => verdicts.extend(self.left(stage, e)),
                 Some(ProgressKind::Started) => verdicts.extend(self.worker_started(stage, e)),
-                Some(ProgressKind::Verdict) | None => {}
+                Some(ProgressKind::Verdict | ProgressKind::Admitted) | None => {}
             }
         }
         verdicts
