@@ -74,6 +74,8 @@ impl Supervisor {
         cleanup_dead_nodes();
         refuse_running_pipeline(&config.pipeline.name)?;
         check_shm_space(&config)?;
+        // A new pipeline hands out no picks of an earlier one.
+        let _ = std::fs::remove_file(crate::next_pick::state_path(&config.pipeline.name));
         let w = config.pipeline.workers;
         let mut processes = Vec::new();
         for (stage, n) in [
@@ -307,6 +309,7 @@ impl Supervisor {
             p.restart_due = None;
         }
         cleanup_dead_nodes();
+        let _ = std::fs::remove_file(crate::next_pick::state_path(&self.config.pipeline.name));
         if let Some(path) = self.temp_config.take() {
             let _ = std::fs::remove_file(path);
         }

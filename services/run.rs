@@ -57,6 +57,8 @@ pub struct RunReport {
     pub outcomes: BTreeMap<u64, FrameOutcome>,
     /// Outcomes of frames that already had one (should be 0).
     pub second_outcomes: u64,
+    /// What the first few second outcomes were (first and second status and reason).
+    pub second_outcome_examples: Vec<String>,
     /// Frames camera-ingest reported admitted.
     pub admitted: BTreeSet<u64>,
     /// Stage restarts done by the supervisor.
@@ -108,8 +110,24 @@ impl RunReport {
                 }
             }
         }
-        if self.outcomes.insert(o.frame_id(), o).is_some() {
+        let describe = |o: &FrameOutcome| {
+            format!(
+                "{:?} from {:?} ({})",
+                o.status(),
+                o.error_stage(),
+                o.header.error_text()
+            )
+        };
+        let second = describe(&o);
+        if let Some(first) = self.outcomes.insert(o.frame_id(), o) {
             self.second_outcomes += 1;
+            if self.second_outcome_examples.len() < 10 {
+                self.second_outcome_examples.push(format!(
+                    "frame {}: {} then {second}",
+                    first.frame_id(),
+                    describe(&first)
+                ));
+            }
         }
     }
 }
@@ -134,6 +152,14 @@ pub fn run_pipeline(
         &cfg.pipeline.name,
         cfg.pipeline.channel,
     )?;
+    let mut cfg = cfg.clone();
+    if opts.chaos.is_some() {
+        // The drill's kills are deliberate and isolated: each restart is a first one (shortest
+        // backoff) and none counts towards giving up.
+        cfg.pipeline.restart_window_s = 1;
+        cfg.pipeline.max_restarts = u32::MAX;
+    }
+    let cfg = &cfg;
     let mut sup = Supervisor::launch(cfg, bin_dir, true)?;
     let start = Instant::now();
     let mut report = RunReport::default();

@@ -1,5 +1,8 @@
 //! Multi-process tests: the four real stage binaries over real iceoryx2 shared memory.
 //! Each test uses its own pipeline name, so tests run in parallel without interfering.
+mod common;
+
+use common::{bin_dir, nodes_of, shipped_config, test_config};
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use psgrasp::launcher::write_temp_config;
@@ -13,52 +16,6 @@ use psgrasp_ipc::{DropPolicy, Stage, Stamp, StatusCode};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
-
-fn bin_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_BIN_EXE_psgrasp-grid-fusion"))
-        .parent()
-        .unwrap()
-        .to_path_buf()
-}
-
-/// `config/default.toml` as shipped (the learned model in `models/default`), for test `tag`.
-fn shipped_config(tag: &str) -> PipelineConfig {
-    let mut cfg = PipelineConfig::load(&PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/config/default.toml"
-    )))
-    .unwrap();
-    cfg.pipeline.name = format!("t-{tag}-{}", std::process::id());
-    cfg.camera.synthetic.objects = 4;
-    cfg.camera.rate_hz = 0.0;
-    cfg
-}
-
-/// The shipped configuration with the analytic backend: the pipeline-mechanics tests need fast,
-/// model-independent inference.
-fn test_config(tag: &str) -> PipelineConfig {
-    let mut cfg = shipped_config(tag);
-    cfg.cell.inference = BackendConfig::Analytic(Default::default());
-    cfg
-}
-
-/// Nodes of `pipeline` still registered with iceoryx2 (alive or dead).
-fn nodes_of(pipeline: &str) -> usize {
-    let mut n = 0;
-    Node::<ipc::Service>::list(Config::global_config(), |state| {
-        let name = match &state {
-            NodeState::Alive(v) => v.details().as_ref().map(|d| d.name().as_str().to_string()),
-            NodeState::Dead(v) => v.details().as_ref().map(|d| d.name().as_str().to_string()),
-            _ => None,
-        };
-        if name.is_some_and(|s| s.starts_with(pipeline)) {
-            n += 1;
-        }
-        CallbackProgression::Continue
-    })
-    .unwrap();
-    n
-}
 
 #[test]
 fn four_processes_turn_every_frame_into_picks() {

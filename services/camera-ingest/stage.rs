@@ -13,7 +13,7 @@ use psgrasp_config::PipelineConfig;
 use psgrasp_geometry::{CameraModel, DepthImage};
 use psgrasp_ipc::{
     now_ns, FrameHeader, FrameLedger, FramePublisher, FrameSubscriber, MessageKind, PickRecord,
-    ProgressEvent, Stage, Stamp, StatusCode, Verdict,
+    ProgressEvent, ProgressKind, Stage, Stamp, StatusCode, Verdict,
 };
 use std::time::{Duration, Instant};
 
@@ -24,6 +24,9 @@ const LEDGER_TICK: Duration = Duration::from_millis(5);
 struct Accounting {
     ledger: FrameLedger,
     progress: FrameSubscriber<ProgressEvent>,
+    /// Every frame's outcome (grasp-selection's, and the records decided here): the last
+    /// stage's report that a frame ended, in the same message, so it cannot be missed.
+    ended: FrameSubscriber<PickRecord>,
     /// Error records decided here (lost frames, refused and invalid frames).
     outcomes: FramePublisher<PickRecord>,
     events: Vec<ProgressEvent>,
@@ -35,8 +38,20 @@ impl Accounting {
     /// Reads the progress reports and publishes the error record of every frame the ledger
     /// ends (a stage holding it restarted, or the loss timeout passed).
     fn settle(&mut self, ctx: &mut StageContext) -> Result<()> {
+        // Progress first, then outcomes: an outcome sent before a restart report is then seen
+        // in the same batch (the batch is applied in time order).
         while let Some(s) = self.progress.receive()? {
             self.events.extend_from_slice(s.payload());
+        }
+        while let Some(s) = self.ended.receive()? {
+            let h = s.user_header();
+            self.events.push(ProgressEvent::new(
+                ProgressKind::Left,
+                Stage::GraspSelection,
+                h.workers[2] as u32,
+                h.frame_id,
+                h.stamps_ns[Stamp::SelectionEnd as usize],
+            ));
         }
         let mut verdicts = self.ledger.apply(&mut self.events);
         self.events.clear();
@@ -105,6 +120,7 @@ pub fn run(args: StageArgs) -> Result<()> {
             cfg.pipeline.loss_timeout_ms * 1_000_000,
         ),
         progress: ctx.node.progress_subscriber()?,
+        ended: ctx.node.outcome_subscriber()?,
         outcomes: ctx.node.outcome_publisher(1)?,
         events: Vec::new(),
         template,

@@ -193,9 +193,10 @@ fn run(cli: Cli) -> Result<()> {
                 cfg.pipeline.channel,
             )?;
             let client = psgrasp::next_pick::PickClient::connect(&node)?;
-            match client.next_pick(failed, Duration::from_secs(2))? {
+            // Long enough to wait out a grasp-selection restart.
+            match client.next_pick(failed, Duration::from_secs(5))? {
                 None => anyhow::bail!(
-                    "no answer from grasp-selection within 2 s: is `psgrasp up` running?"
+                    "no answer from grasp-selection within 5 s: is `psgrasp up` running?"
                 ),
                 Some(r) => match r.status() {
                     Some(NextPickStatus::Pick) => println!(

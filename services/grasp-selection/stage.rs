@@ -2,7 +2,7 @@
 //! published as the frame's outcome, and (worker 0) the next-pick server. Frames the ledger
 //! already ended (camera-ingest's verdicts on `progress`) are not published a second time.
 use crate::inference::grid_view;
-use crate::next_pick::NextPickServer;
+use crate::next_pick::{state_path, NextPickServer};
 use crate::stage::{run_stage, Output, Sent, Shard, Stage, StageArgs, StageContext, StepFailure};
 use anyhow::Result;
 use psgrasp_geometry::GraspConfiguration;
@@ -194,7 +194,9 @@ pub fn run(args: StageArgs) -> Result<()> {
         grids: BTreeMap::new(),
         ended_by_ledger: RecentIds::new(VERDICT_MEMORY),
         started_ns: ctx.started_ns,
-        server: server_ports.as_ref().map(NextPickServer::new),
+        server: server_ports
+            .as_ref()
+            .map(|ports| NextPickServer::new(ports, state_path(&cfg.pipeline.name))),
     };
     tracing::info!("grasp-selection[{}] ready", ctx.worker);
     run_stage(

@@ -4,4 +4,4 @@ mod client;
 mod server;
 
 pub use client::PickClient;
-pub use server::{NextPickPorts, NextPickServer, PickCursor};
+pub use server::{state_path, NextPickPorts, NextPickServer, PickCursor};

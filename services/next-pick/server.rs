@@ -1,12 +1,14 @@
 //! The next-pick server (in grasp-selection worker 0): hands out the picks of the latest
-//! successful frame one by one to a cell controller.
-use anyhow::Result;
+//! successful frame one by one to a cell controller. Its cursor is saved to a state file on
+//! every change, so a restarted grasp-selection carries on where the dead one stopped.
+use anyhow::{Context, Result};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
 use psgrasp_ipc::{
     FrameSubscriber, NextPickMode, NextPickRequest, NextPickResponse, NextPickStatus, PickRecord,
     PipelineNode,
 };
+use std::path::{Path, PathBuf};
 
 type Server =
     iceoryx2::port::server::Server<ipc::Service, NextPickRequest, (), NextPickResponse, ()>;
@@ -27,7 +29,7 @@ impl NextPickPorts {
 }
 
 /// Which pick of the latest successful frame a controller gets next.
-#[derive(Debug, Default, Clone, PartialEq)]
+#[derive(Debug, Default, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PickCursor {
     latest: Option<(u64, Vec<PickRecord>)>,
     cursor: usize,
@@ -38,11 +40,33 @@ pub struct PickCursor {
 
 impl PickCursor {
     /// Takes in the picks of `frame_id` if it is newer than the latest; starts at its best pick.
-    pub fn offer(&mut self, frame_id: u64, picks: &[PickRecord]) {
+    /// True if it did.
+    pub fn offer(&mut self, frame_id: u64, picks: &[PickRecord]) -> bool {
         if self.latest.as_ref().is_none_or(|(id, _)| frame_id > *id) {
             self.latest = Some((frame_id, picks.to_vec()));
             self.cursor = 0;
             self.handed_out = false;
+            return true;
+        }
+        false
+    }
+
+    /// Saves the cursor to `path` (atomically: a temporary file renamed over it).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let tmp = path.with_extension("tmp");
+        std::fs::write(&tmp, serde_json::to_vec(self)?)
+            .with_context(|| format!("writing {}", tmp.display()))?;
+        std::fs::rename(&tmp, path).with_context(|| format!("replacing {}", path.display()))?;
+        Ok(())
+    }
+
+    /// The cursor saved at `path`; empty if there is none.
+    pub fn load(path: &Path) -> Result<Self> {
+        match std::fs::read(path) {
+            Ok(bytes) => serde_json::from_slice(&bytes)
+                .with_context(|| format!("reading the next-pick state {}", path.display())),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Self::default()),
+            Err(e) => Err(e).with_context(|| format!("reading {}", path.display())),
         }
     }
 
@@ -66,10 +90,19 @@ impl PickCursor {
     }
 }
 
+/// Where the next-pick server of pipeline `pipeline` keeps its cursor (the launcher removes it
+/// when a pipeline starts and stops).
+pub fn state_path(pipeline: &str) -> PathBuf {
+    std::env::temp_dir()
+        .join("psgrasp")
+        .join(format!("{pipeline}-next-pick.json"))
+}
+
 /// Serves `next-pick` requests from the latest successful pick list.
 pub struct NextPickServer<'p> {
     ports: &'p NextPickPorts,
     picks: PickCursor,
+    state: PathBuf,
 }
 
 impl<'p> NextPickServer<'p> {
@@ -84,7 +117,7 @@ impl<'p> NextPickServer<'p> {
             .listener_builder()
             .create()
             .map_err(|e| anyhow::anyhow!("next-pick listener: {e:?}"))?;
-        let picks = node.subscriber::<PickRecord>(&node.names.picks())?;
+        let picks = node.outcome_subscriber()?;
         Ok(NextPickPorts {
             server,
             requests,
@@ -92,21 +125,43 @@ impl<'p> NextPickServer<'p> {
         })
     }
 
-    /// A server on `ports` that has seen no picks yet.
-    pub fn new(ports: &'p NextPickPorts) -> Self {
+    /// A server on `ports` that carries on from the cursor saved at `state` (a restart), or
+    /// starts empty.
+    pub fn new(ports: &'p NextPickPorts, state: PathBuf) -> Self {
+        if let Some(dir) = state.parent() {
+            let _ = std::fs::create_dir_all(dir);
+        }
+        let picks = PickCursor::load(&state).unwrap_or_else(|e| {
+            tracing::warn!("{e:#}; starting without picks");
+            PickCursor::default()
+        });
+        if let Some((frame_id, _)) = &picks.latest {
+            tracing::info!("next-pick: carrying on with the picks of frame {frame_id}");
+        }
         Self {
             ports,
-            picks: PickCursor::default(),
+            picks,
+            state,
+        }
+    }
+
+    fn save(&self) {
+        if let Err(e) = self.picks.save(&self.state) {
+            tracing::warn!("next-pick state not saved: {e:#}");
         }
     }
 
     /// Takes in new pick lists, then answers every pending request.
     pub fn serve(&mut self) -> Result<()> {
+        let mut changed = false;
         while let Some(s) = self.ports.picks.receive()? {
             let h = s.user_header();
             if h.is_ok() {
-                self.picks.offer(h.frame_id, s.payload());
+                changed |= self.picks.offer(h.frame_id, s.payload());
             }
+        }
+        if changed {
+            self.save();
         }
         while let Some(active) = self
             .ports
@@ -115,6 +170,7 @@ impl<'p> NextPickServer<'p> {
             .map_err(|e| anyhow::anyhow!("next-pick receive: {e:?}"))?
         {
             let response = self.picks.answer(active.payload().mode());
+            self.save();
             active
                 .send_copy(response)
                 .map_err(|e| anyhow::anyhow!("next-pick respond: {e:?}"))?;
@@ -163,8 +219,30 @@ mod tests {
             Some(NextPickStatus::Exhausted)
         );
         // An older frame never replaces a newer one; an undefined mode is refused.
-        c.offer(9, &picks(1));
+        assert!(!c.offer(9, &picks(1)));
         assert_eq!(c.answer(None).status(), Some(NextPickStatus::BadRequest));
         assert_eq!(c.answer(None).frame_id, 11);
+    }
+
+    #[test]
+    fn the_cursor_survives_a_restart_through_its_state_file() {
+        let dir = std::env::temp_dir().join(format!("psgrasp-cursor-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("state.json");
+        assert_eq!(PickCursor::load(&path).unwrap(), PickCursor::default());
+        let mut c = PickCursor::default();
+        let mut p = picks(3);
+        p[1].position = [0.1, -0.25, 1.0 / 3.0];
+        c.offer(42, &p);
+        c.answer(Some(NextPickMode::Current));
+        c.answer(Some(NextPickMode::AfterFailure));
+        c.save(&path).unwrap();
+        let mut restored = PickCursor::load(&path).unwrap();
+        assert_eq!(restored, c, "bit-exact picks and the same position");
+        let r = restored.answer(Some(NextPickMode::AfterFailure));
+        assert_eq!((r.frame_id, rank(r)), (42, Some(2)));
+        std::fs::write(&path, b"{not json").unwrap();
+        assert!(PickCursor::load(&path).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

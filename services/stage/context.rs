@@ -80,7 +80,8 @@ pub struct StageContext {
     /// The iceoryx2 node.
     pub node: PipelineNode,
     stats_pub: FramePublisher<StageStats>,
-    progress_pub: FramePublisher<ProgressEvent>,
+    /// Progress reports for the frame ledger (see [`ProgressReporter`]).
+    pub progress_pub: FramePublisher<ProgressEvent>,
     /// When this worker started taking frames (set once its inputs are attached); frames
     /// queued for it before are stale.
     pub started_ns: u64,
@@ -147,30 +148,15 @@ impl StageContext {
         Ok(())
     }
 
-    /// Reports on `progress` that frame `frame_id` left this stage with end stamp `end_ns`.
-    pub fn report_left(&self, frame_id: u64, end_ns: u64) {
-        self.report(ProgressKind::Left, frame_id, end_ns);
-    }
-
     /// Reports on `progress` that the ledger ended frame `frame_id` (grasp-selection then
     /// drops a late result of it).
     pub fn report_verdict(&self, frame_id: u64) {
-        self.report(ProgressKind::Verdict, frame_id, now_ns());
+        ProgressReporter::new(self).report(ProgressKind::Verdict, frame_id, now_ns());
     }
 
     /// Reports on `progress` that camera-ingest admitted frame `frame_id` at `stamp_ns`.
     pub fn report_admitted(&self, frame_id: u64, stamp_ns: u64) {
-        self.report(ProgressKind::Admitted, frame_id, stamp_ns);
-    }
-
-    fn report(&self, kind: ProgressKind, frame_id: u64, stamp_ns: u64) {
-        let event = ProgressEvent::new(kind, self.stage, self.worker, frame_id, stamp_ns);
-        if let Err(e) = self
-            .progress_pub
-            .send_slice(FrameHeader::default(), std::slice::from_ref(&event))
-        {
-            tracing::warn!("frame {frame_id}: progress report failed: {e}");
-        }
+        ProgressReporter::new(self).report(ProgressKind::Admitted, frame_id, stamp_ns);
     }
 
     /// Start-up barrier: waits (up to `camera.wait_for_subscribers_ms`) until every input has at
@@ -255,6 +241,39 @@ impl StageContext {
             s.dropped,
             s.busy_ns as f64 * 1e-6
         );
+    }
+}
+
+/// Sends this worker's progress reports (borrows only the context's progress publisher).
+pub struct ProgressReporter<'a> {
+    pub(super) publisher: &'a FramePublisher<ProgressEvent>,
+    pub(super) stage: Stage,
+    pub(super) worker: u32,
+}
+
+impl<'a> ProgressReporter<'a> {
+    /// The reporter of `ctx`'s worker.
+    pub fn new(ctx: &'a StageContext) -> Self {
+        Self {
+            publisher: &ctx.progress_pub,
+            stage: ctx.stage,
+            worker: ctx.worker,
+        }
+    }
+
+    /// Reports that frame `frame_id` leaves this stage with end stamp `end_ns`.
+    pub fn left(&self, frame_id: u64, end_ns: u64) {
+        self.report(ProgressKind::Left, frame_id, end_ns);
+    }
+
+    fn report(&self, kind: ProgressKind, frame_id: u64, stamp_ns: u64) {
+        let event = ProgressEvent::new(kind, self.stage, self.worker, frame_id, stamp_ns);
+        if let Err(e) = self
+            .publisher
+            .send_slice(FrameHeader::default(), std::slice::from_ref(&event))
+        {
+            tracing::warn!("frame {frame_id}: progress report failed: {e}");
+        }
     }
 }
 

@@ -7,7 +7,8 @@
 mod context;
 
 pub use context::{
-    init_logging, run_event_loop, stage_main, stats_due, LoopExit, Shard, StageArgs, StageContext,
+    end_with_parent, init_logging, run_event_loop, stage_main, stats_due, LoopExit,
+    ProgressReporter, Shard, StageArgs, StageContext,
 };
 
 use anyhow::Result;
@@ -38,17 +39,19 @@ impl StepFailure {
     }
 }
 
-/// Proof that a step published its output (only [`Output`]'s send methods make one): the end
-/// stamp it carries.
+/// Proof that a step published its output (only [`Output`]'s send methods make one).
 #[derive(Debug)]
-pub struct Sent(u64);
+pub struct Sent(());
 
 /// Where a step writes its one output message: the prepared header (forwarded from the input,
-/// start stamp and worker index set) and the output publisher. The end stamp is written at send.
+/// start stamp and worker index set) and the output publisher. The end stamp is written at send,
+/// and the frame reported as left this stage (for the frame ledger) just before the send: a stage
+/// killed in between leaves a frame the ledger times out, never one that ends twice.
 pub struct Output<'p, T: Debug + ZeroCopySend + Default + Copy + 'static> {
     publisher: &'p FramePublisher<T>,
     header: FrameHeader,
     end: Stamp,
+    report_left: &'p dyn Fn(&FrameHeader),
 }
 
 impl<T: Debug + ZeroCopySend + Default + Copy + 'static> Output<'_, T> {
@@ -58,10 +61,12 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> Output<'_, T> {
     }
 
     /// Sends `items` as the frame's output.
-    pub fn send_slice(mut self, items: &[T]) -> Result<Sent> {
-        self.header.stamp(self.end);
-        self.publisher.send_slice(self.header, items)?;
-        Ok(Sent(self.header.stamps_ns[self.end as usize]))
+    pub fn send_slice(self, items: &[T]) -> Result<Sent> {
+        let sent = self.send_with(items.len(), |buf| {
+            buf.copy_from_slice(items);
+            Ok(())
+        })?;
+        Ok(sent.expect("copying never fails"))
     }
 
     /// Fills `len` elements straight in shared memory and sends them (zero copy); the end stamp
@@ -71,10 +76,14 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> Output<'_, T> {
         len: usize,
         fill: impl FnOnce(&mut [T]) -> Result<(), StepFailure>,
     ) -> Result<Result<Sent, StepFailure>> {
-        let sent = self
-            .publisher
-            .send_with_stamp(self.header, len, fill, Some(self.end))?;
-        Ok(sent.map(|h| Sent(h.stamps_ns[self.end as usize])))
+        let sent = self.publisher.send_with_stamp(
+            self.header,
+            len,
+            fill,
+            Some(self.end),
+            self.report_left,
+        )?;
+        Ok(sent.map(|_| Sent(())))
     }
 }
 
@@ -199,6 +208,17 @@ pub fn run_stage<S: Stage>(
                 continue;
             }
             let started = Instant::now();
+            // The last stage's output is the outcome itself, which the ledger reads.
+            let progress = ProgressReporter {
+                publisher: &ctx.progress_pub,
+                stage: ctx.stage,
+                worker: ctx.worker,
+            };
+            let report_left = |sent: &FrameHeader| {
+                if S::STAGE != psgrasp_ipc::Stage::GraspSelection {
+                    progress.left(sent.frame_id, sent.stamps_ns[S::END as usize]);
+                }
+            };
             let mut out = h.forwarded(S::OUTPUT);
             out.stamp(S::START);
             if let Some(slot) = worker_slot(S::STAGE) {
@@ -214,23 +234,20 @@ pub fn run_stage<S: Stage>(
                     publisher: output,
                     header: out,
                     end: S::END,
+                    report_left: &report_left,
                 };
                 stage.process(&h, sample.payload(), output)?
             };
             drop(sample);
-            let end_ns = match failure {
-                Ok(Sent(end_ns)) => {
-                    ctx.stats.frames_out += 1;
-                    end_ns
-                }
+            match failure {
+                Ok(Sent(_)) => ctx.stats.frames_out += 1,
                 Err(f) => {
                     let rec = error_record(&h, out, S::STAGE, &f, S::END);
+                    report_left(&rec);
                     output.send_header(rec)?;
                     ctx.stats.errors += 1;
-                    rec.stamps_ns[S::END as usize]
                 }
-            };
-            ctx.report_left(h.frame_id, end_ns);
+            }
             ctx.stats.busy_ns += started.elapsed().as_nanos() as u64;
         }
         stage.after_frames(output, &mut ctx.stats.errors)?;

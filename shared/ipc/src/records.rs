@@ -53,7 +53,9 @@ impl From<&GraspRecord> for GraspConfiguration {
 
 /// One executable pick: gripper pose (TCP), pre-grasp pose and scores (88 bytes).
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, serde::Serialize, serde::Deserialize,
+)]
 #[type_name("psgrasp::PickRecord/v1")]
 pub struct PickRecord {
     /// TCP position in the workspace frame, metres.

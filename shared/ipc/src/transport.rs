@@ -445,22 +445,23 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
         fill: impl FnOnce(&mut [T]) -> Result<(), E>,
     ) -> Result<Result<usize, E>, IpcError> {
         Ok(self
-            .send_inner(header, len, fill, None)?
+            .send_inner(header, len, fill, None, |_| {})?
             .map(|(delivered, _)| delivered))
     }
 
     /// Like [`Self::send_with`], recording `end_stamp` in the header once `fill` has finished
-    /// (so the stage's processing time includes the work done inside the loan). Returns the
-    /// header as sent.
+    /// (so the stage's processing time includes the work done inside the loan) and calling
+    /// `before_send` with the final header just before the send. Returns the header as sent.
     pub fn send_with_stamp<E>(
         &self,
         header: FrameHeader,
         len: usize,
         fill: impl FnOnce(&mut [T]) -> Result<(), E>,
         end_stamp: Option<crate::Stamp>,
+        before_send: impl FnOnce(&FrameHeader),
     ) -> Result<Result<FrameHeader, E>, IpcError> {
         Ok(self
-            .send_inner(header, len, fill, end_stamp)?
+            .send_inner(header, len, fill, end_stamp, before_send)?
             .map(|(_, header)| header))
     }
 
@@ -470,6 +471,7 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
         len: usize,
         fill: impl FnOnce(&mut [T]) -> Result<(), E>,
         end_stamp: Option<crate::Stamp>,
+        before_send: impl FnOnce(&FrameHeader),
     ) -> Result<Result<(usize, FrameHeader), E>, IpcError> {
         let mut sample = self.publisher.loan_slice(len).map_err(|e| IpcError::Send {
             service: self.service.clone(),
@@ -483,6 +485,7 @@ impl<T: Debug + ZeroCopySend + Default + Copy + 'static> FramePublisher<T> {
             header.stamp(stamp);
         }
         *sample.user_header_mut() = header;
+        before_send(&header);
         let subscribers = self.subscriber_count();
         let discarded_before = self.dropped.load(Ordering::Relaxed);
         let delivered = sample.send().map_err(|e| IpcError::Send {
