@@ -327,3 +327,52 @@ fn a_killed_launcher_takes_its_stages_along_and_a_running_pipeline_is_not_double
     std::fs::remove_file(&path).ok();
     assert_eq!(nodes_of(&name), 0);
 }
+
+/// What `check-config` accepts, every stage starts with: a truncated model file or a replay
+/// folder that does not exist fail the check (failure 5: they passed it and the stage then
+/// crashed at start, five times).
+#[test]
+fn check_config_refuses_what_a_stage_could_not_start_with() {
+    let dir = std::env::temp_dir().join(format!("psgrasp-preflight-{}", std::process::id()));
+    let model = dir.join("model");
+    std::fs::create_dir_all(&model).unwrap();
+    let shipped = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/models/default"));
+    for entry in std::fs::read_dir(shipped).unwrap() {
+        let entry = entry.unwrap();
+        std::fs::copy(entry.path(), model.join(entry.file_name())).unwrap();
+    }
+    let check = |cfg: &psgrasp_config::PipelineConfig| {
+        let path = dir.join("cell.toml");
+        std::fs::write(&path, cfg.to_toml()).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_psgrasp"))
+            .arg("check-config")
+            .arg(&path)
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let mut cfg = common::shipped_config("preflight");
+    cfg.cell.inference = psgrasp_inference::BackendConfig::for_model_dir(&model, 1);
+    assert_eq!(
+        check(&cfg).0,
+        true,
+        "the intact copy of the shipped model passes: {}",
+        check(&cfg).1
+    );
+    let unet = model.join("unet.onnx");
+    let bytes = std::fs::read(&unet).unwrap();
+    std::fs::write(&unet, &bytes[..bytes.len() / 3]).unwrap();
+    let (ok, err) = check(&cfg);
+    assert!(!ok, "a truncated model passed check-config");
+    assert!(err.contains("inference"), "{err}");
+    let mut cfg = common::test_config("preflight");
+    cfg.camera.source = psgrasp_config::SourceKind::Replay;
+    cfg.camera.replay.path = dir.join("no-such-recording");
+    let (ok, err) = check(&cfg);
+    assert!(!ok, "a missing replay folder passed check-config");
+    assert!(err.contains("depth source"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -72,7 +72,8 @@ enum Command {
         #[arg(long, default_value_t = 600)]
         timeout: u64,
     },
-    /// Validate a configuration file and print it with all defaults filled in.
+    /// Validate a configuration file, load what every stage loads at start (depth source, model
+    /// files, /dev/shm space), and print it with all defaults filled in.
     CheckConfig {
         /// Pipeline configuration.
         #[arg(default_value = "config/default.toml")]
@@ -178,6 +179,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Eval(args) => psgrasp_eval::run_eval(&args),
         Command::CheckConfig { config } => {
             let cfg = PipelineConfig::load(&config)?;
+            psgrasp::launcher::preflight(&cfg)?;
             println!(
                 "# {} is valid; effective configuration:\n{}",
                 config.display(),
