@@ -235,10 +235,9 @@ pub fn run_pipeline(
                     }
                 } else if wind_down.is_none() {
                     let last_restarted = report.kills.last().is_none_or(|k| k.started_ns.is_some());
-                    if !sup.restart_pending() && last_restarted {
-                        sup.stop(Stage::CameraIngest, 0);
-                        wind_down = Some(Instant::now());
-                    } else if start.elapsed() >= opts.timeout + drain_limit {
+                    // Stop the camera once every killed stage is back (or give up waiting).
+                    let all_back = !sup.restart_pending() && last_restarted;
+                    if all_back || start.elapsed() >= opts.timeout + drain_limit {
                         sup.stop(Stage::CameraIngest, 0);
                         wind_down = Some(Instant::now());
                     }

@@ -3,8 +3,6 @@
 mod common;
 
 use common::{bin_dir, nodes_of, shipped_config, test_config};
-use iceoryx2::node::NodeView;
-use iceoryx2::prelude::*;
 use psgrasp::launcher::write_temp_config;
 use psgrasp::launcher::Supervisor;
 use psgrasp::monitor::PipelineMonitor;
@@ -14,7 +12,6 @@ use psgrasp_config::{PipelineConfig, PoseConfig, SourceKind};
 use psgrasp_inference::BackendConfig;
 use psgrasp_ipc::{DropPolicy, Stage, Stamp, StatusCode};
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 #[test]
