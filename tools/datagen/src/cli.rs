@@ -211,7 +211,22 @@ fn manifest_entry(index: u64, meta: &crate::dataset::SceneMeta) -> ManifestScene
         graspable_objects: meta.label_stats.graspable_objects,
         poses_checked: meta.label_stats.poses_checked,
         poses_free: meta.label_stats.poses_free,
+        wall_zones: meta.wall_zones,
     }
+}
+
+/// "N objects, X (x %) within 20 mm of a side wall, Y (y %) in a corner".
+pub fn describe_wall_zones(z: &psgrasp_sim::WallZones) -> String {
+    let share = |n: usize| 100.0 * n as f64 / z.objects.max(1) as f64;
+    format!(
+        "{} objects, {} ({:.1} %) within {:.0} mm of a side wall, {} ({:.1} %) in a corner",
+        z.objects,
+        z.near_wall,
+        share(z.near_wall),
+        psgrasp_sim::NEAR_WALL_M * 1000.0,
+        z.in_corner,
+        share(z.in_corner)
+    )
 }
 
 /// Runs `psgrasp datagen`: generates (or resumes) a dataset in `args.out`, scenes in parallel.
@@ -350,6 +365,16 @@ pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
     }
     manifest.scenes.sort_by_key(|e| e.index);
     manifest.write(&args.out)?;
+    let mut zones = psgrasp_sim::WallZones::default();
+    for s in &manifest.scenes {
+        zones += s.wall_zones;
+    }
+    println!(
+        "{}: {} scenes; {}",
+        args.out.display(),
+        manifest.scenes.len(),
+        describe_wall_zones(&zones)
+    );
     if let Some(e) = first_error {
         return Err(e);
     }
@@ -367,9 +392,9 @@ pub fn run_inspect(args: &InspectArgs) -> anyhow::Result<()> {
     let img = render_inspection(&record, args.max_grasps, !args.clean);
     img.write_png(&out)?;
     println!(
-        "{}: {} objects, {} grasp configurations, {} collision-free grasps -> {}",
+        "{}: {}; {} grasp configurations, {} collision-free grasps -> {}",
         args.scene.display(),
-        record.meta.scene.objects.len(),
+        describe_wall_zones(&record.meta.wall_zones),
         record.labels.len(),
         record.labels.iter().map(|l| l.free_count()).sum::<usize>(),
         out.display()

@@ -52,6 +52,9 @@ pub struct SceneMeta {
     pub scene: SceneDescription,
     /// Physics summary.
     pub settle: SettleReport,
+    /// Where the settled objects lie relative to the side walls.
+    #[serde(default)]
+    pub wall_zones: psgrasp_sim::WallZones,
     /// Label counters.
     pub label_stats: LabelStats,
 }
@@ -401,6 +404,9 @@ pub struct ManifestScene {
     pub poses_checked: usize,
     /// Gripper poses found collision-free.
     pub poses_free: usize,
+    /// Where the settled objects lie relative to the side walls.
+    #[serde(default)]
+    pub wall_zones: psgrasp_sim::WallZones,
 }
 
 /// The dataset manifest (`manifest.json`).

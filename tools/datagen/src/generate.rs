@@ -192,6 +192,7 @@ pub fn generate_record_with_recipe(
         truncation_m: grid.truncation_m,
         scene: scene.description().clone(),
         settle,
+        wall_zones: scene.wall_zones(),
         label_stats: label_set.stats,
     };
     Ok(SceneRecord {

@@ -95,9 +95,9 @@ pub fn failure_cause(a: &AttemptRecord) -> &'static str {
     }
 }
 
-/// An object left this close to a side wall counts as "by a wall" in the report, metres (the
-/// Franka palm is 63 mm thick: closer than this, only approaches tilted away from the wall fit).
-pub const NEAR_WALL_M: f32 = 0.02;
+/// An object left this close to a side wall counts as "by a wall" in the report (the same
+/// threshold as the datasets' wall statistics).
+pub use psgrasp_sim::NEAR_WALL_M;
 
 /// The whole summary.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

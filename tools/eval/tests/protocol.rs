@@ -100,9 +100,13 @@ fn three_failures_in_a_row_end_the_scene() {
     // A held object keeps the fingers 30-60 mm apart: demanding 79 mm judges every attempt a
     // failure, so the scene ends after the configured number of failures in a row.
     let mut proto = ProtocolConfig::default();
+    // An easy scene where the default protocol attempts at least twice.
+    let scene = (0..20)
+        .find(|&i| run(Difficulty::Easy, i, 0, &proto).summary.attempts >= 2)
+        .expect("an easy scene with two attempts");
     proto.execution.min_opening_m = 0.079;
     proto.max_consecutive_failures = 2;
-    let r = run(Difficulty::Easy, 0, 0, &proto);
+    let r = run(Difficulty::Easy, scene, 0, &proto);
     assert_eq!(r.summary.successes, 0);
     assert_eq!(r.summary.end, SceneEnd::ConsecutiveFailures);
     assert_eq!(r.summary.attempts, 2);

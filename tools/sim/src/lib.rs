@@ -26,10 +26,10 @@ pub mod scene;
 pub use mesh::{MeshAsset, MeshLibrary};
 pub use noise::{add_dex_noise, NoiseConfig};
 pub use objects::{LibraryObject, ObjectKind, ObjectLibrary, ObjectSpec, Part, Primitive, Split};
-pub use physics::{drop_and_settle, SettleConfig, SettleReport};
+pub use physics::{drop_and_settle, spawn_xy, SettleConfig, SettleReport};
 pub use scene::{
-    HitTarget, RayHit, Rendering, Scene, SceneDescription, SceneObject, SEGMENT_BIN,
-    SEGMENT_OBJECT0,
+    HitTarget, RayHit, Rendering, Scene, SceneDescription, SceneObject, WallZones, NEAR_WALL_M,
+    SEGMENT_BIN, SEGMENT_OBJECT0,
 };
 
 use nalgebra::Point3;
@@ -230,6 +230,60 @@ mod tests {
             .map(|o| o.workspace_from_object.translation.z)
             .fold(f32::INFINITY, f32::min);
         assert!(lowest < bin.floor_center.z + 0.08);
+    }
+
+    #[test]
+    fn objects_are_released_over_the_drop_region_and_fewer_end_against_the_walls() {
+        let bin = BinModel::default();
+        let [lx, ly, _] = bin.inner_size_m;
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for (fraction, r) in [(0.5f32, 0.02f32), (1.0, 0.05), (0.25, 0.0)] {
+            for _ in 0..500 {
+                let (x, y) = physics::spawn_xy(&bin, r, fraction, &mut rng);
+                let (dx, dy) = (
+                    (x - bin.floor_center.x).abs(),
+                    (y - bin.floor_center.y).abs(),
+                );
+                assert!(dx <= 0.5 * lx * fraction + 1e-6 && dy <= 0.5 * ly * fraction + 1e-6);
+                assert!(dx <= 0.5 * lx - r + 1e-6 && dy <= 0.5 * ly - r + 1e-6);
+            }
+        }
+        // The same medium scenes, released anywhere over the floor or over its central half.
+        let library = ObjectLibrary::procedural();
+        let pool = library.select(Some(Split::Test), false);
+        let zones = |fraction: f32| {
+            let recipe = SceneRecipe {
+                min_objects: 10,
+                max_objects: 10,
+                settle: SettleConfig {
+                    drop_region_fraction: fraction,
+                    ..Default::default()
+                },
+                ..Default::default()
+            };
+            let mut total = WallZones::default();
+            for seed in 0..6 {
+                let (scene, _) =
+                    generate_scene(seed, &pool, &bin, &MeshLibrary::default(), &recipe).unwrap();
+                total += scene.wall_zones();
+            }
+            total
+        };
+        let (anywhere, central) = (zones(1.0), zones(0.5));
+        assert!(anywhere.in_corner <= anywhere.near_wall && central.in_corner <= central.near_wall);
+        assert!(
+            central.near_wall < anywhere.near_wall,
+            "central drops {central:?} vs anywhere {anywhere:?}"
+        );
+        let bad = SettleConfig {
+            drop_region_fraction: 0.0,
+            ..Default::default()
+        };
+        let recipe = SceneRecipe {
+            settle: bad,
+            ..Default::default()
+        };
+        assert!(generate_scene(0, &pool, &bin, &MeshLibrary::default(), &recipe).is_err());
     }
 
     #[test]

@@ -67,6 +67,29 @@ pub const SEGMENT_BIN: u16 = 1;
 /// Segmentation value of object 0 (object `i` is `SEGMENT_OBJECT0 + i`).
 pub const SEGMENT_OBJECT0: u16 = 2;
 
+/// An object whose bounding box comes this close to a side wall lies against it (m): the
+/// fingers of a top-down grasp cannot get between them.
+pub const NEAR_WALL_M: f32 = 0.02;
+
+/// Objects of a scene by where they lie relative to the side walls ([`Scene::wall_zones`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct WallZones {
+    /// Objects counted.
+    pub objects: usize,
+    /// Within [`NEAR_WALL_M`] of a side wall (corners included).
+    pub near_wall: usize,
+    /// Within [`NEAR_WALL_M`] of two perpendicular side walls.
+    pub in_corner: usize,
+}
+
+impl std::ops::AddAssign for WallZones {
+    fn add_assign(&mut self, o: Self) {
+        self.objects += o.objects;
+        self.near_wall += o.near_wall;
+        self.in_corner += o.in_corner;
+    }
+}
+
 /// A scene ready for queries: exact shapes, their poses and a BVH over them.
 #[derive(Clone)]
 pub struct Scene {
@@ -245,6 +268,26 @@ impl Scene {
             let aabb = self.shapes[index].compute_aabb(&self.poses[index]);
             (point_from_glam(aabb.mins), point_from_glam(aabb.maxs))
         })
+    }
+
+    /// Where the objects lie relative to the bin's side walls (their world-frame bounding
+    /// boxes against the inner footprint).
+    pub fn wall_zones(&self) -> WallZones {
+        let bin = self.bin();
+        let c = bin.floor_center;
+        let [lx, ly, _] = bin.inner_size_m;
+        let mut zones = WallZones::default();
+        for i in 0..self.object_count() {
+            let Some((lo, hi)) = self.object_aabb(i) else {
+                continue;
+            };
+            let gap_x = (lo.x - (c.x - 0.5 * lx)).min((c.x + 0.5 * lx) - hi.x);
+            let gap_y = (lo.y - (c.y - 0.5 * ly)).min((c.y + 0.5 * ly) - hi.y);
+            zones.objects += 1;
+            zones.near_wall += usize::from(gap_x.min(gap_y) < NEAR_WALL_M);
+            zones.in_corner += usize::from(gap_x.max(gap_y) < NEAR_WALL_M);
+        }
+        zones
     }
 
     /// Signed distance from `p` to the surface of object `index` (negative inside); `None` for
