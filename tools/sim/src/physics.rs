@@ -28,13 +28,18 @@ pub struct SettleConfig {
     pub rest_linear_speed: f32,
     /// ... and this angular speed (rad/s).
     pub rest_angular_speed: f32,
-    /// Gap between the rim and the lowest spawned object, and between stacked spawns (m).
+    /// Gap between objects released over the same spot, stacked (m).
     pub spawn_gap_m: f32,
     /// Objects are released above the central part of the bin floor: this share of each side
     /// of the inner footprint (1 = anywhere over the floor). Our reading of the paper, which
     /// drops objects into the bin (and re-drops those lying against a wall), and of VGN, which
     /// drops its piles from the middle of the workspace (`docs/datasets.md`).
     pub drop_region_fraction: f32,
+    /// How high above the floor the lowest object is released: the gap under its bounding
+    /// sphere, m (objects released over the same spot stack above it, `spawn_gap_m` apart).
+    /// Low releases settle where they land instead of scattering; at least the bin's depth
+    /// releases everything above the rim.
+    pub release_height_m: f32,
     /// Friction coefficient of all colliders.
     pub friction: f32,
     /// Restitution of all colliders.
@@ -59,6 +64,7 @@ impl Default for SettleConfig {
             rest_angular_speed: 0.1,
             spawn_gap_m: 0.01,
             drop_region_fraction: 0.5,
+            release_height_m: 0.02,
             friction: 0.7,
             restitution: 0.05,
             density: 500.0,
@@ -107,6 +113,11 @@ pub fn drop_and_settle(
             reason: "settle drop_region_fraction must be in (0, 1]",
         });
     }
+    if !(config.release_height_m >= 0.0 && config.release_height_m <= 10.0) {
+        return Err(SimError::InvalidConfig {
+            reason: "settle release_height_m must be in 0..=10 m",
+        });
+    }
     let mut world = physics_world(config.dt_s);
 
     // The bin, padded outward so that fast objects cannot tunnel through its thin walls.
@@ -119,7 +130,7 @@ pub fn drop_and_settle(
         let shape = spec.build_physics_shape(meshes)?;
         let r = bounding_radius(&shape);
         let (x, y) = spawn_xy(bin, r, config.drop_region_fraction, rng);
-        let mut z = bin.rim_z() + r + config.spawn_gap_m;
+        let mut z = bin.floor_center.z + config.release_height_m + r;
         for (p, pr) in &placed {
             let dxy = ((p.x - x).powi(2) + (p.y - y).powi(2)).sqrt();
             if dxy < r + pr + config.spawn_gap_m {
