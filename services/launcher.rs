@@ -380,11 +380,13 @@ pub fn restart_backoff(base_ms: u64, max_ms: u64, earlier: u32) -> Duration {
 /// source, the fusion step, the inference backend (model files included), the selection step,
 /// and the `/dev/shm` check. What this accepts, every stage starts with (`psgrasp check-config`).
 pub fn preflight(cfg: &PipelineConfig) -> Result<()> {
+    // First: a workspace too large for /dev/shm would also take gigabytes to build here.
+    check_shm_space(cfg)?;
     crate::sources::source_from_config(cfg).context("camera-ingest: depth source")?;
     psgrasp_perception::FusionStep::new(&cfg.cell).context("grid-fusion")?;
     psgrasp_perception::InferenceStep::new(&cfg.cell).context("inference")?;
     psgrasp_perception::SelectionStep::new(&cfg.cell).context("grasp-selection")?;
-    check_shm_space(cfg)
+    Ok(())
 }
 
 /// Fails early when `/dev/shm` cannot hold the pipeline's buffers (a full tmpfs makes publishers

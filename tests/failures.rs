@@ -372,3 +372,28 @@ fn check_config_refuses_what_a_stage_could_not_start_with() {
     assert!(err.contains("depth source"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A stage started by hand (not by the launcher) checks /dev/shm itself: a 512³ workspace needs
+/// far more shared memory than the machine has, and the stage refuses to start saying so
+/// (issue 19, list item 9: the check ran only in the launcher).
+#[test]
+fn a_stage_started_by_hand_refuses_a_pipeline_larger_than_dev_shm() {
+    let mut cfg = test_config("shm");
+    cfg.cell.workspace.dims = [512, 512, 512];
+    cfg.cell.workspace.voxel_size_m = 0.001;
+    let path = write_temp_config(&cfg, "shm").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_psgrasp-grid-fusion"))
+        .arg("--config")
+        .arg(&path)
+        .output()
+        .unwrap();
+    std::fs::remove_file(&path).ok();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("/dev/shm"), "{err}");
+    assert_eq!(
+        nodes_of(&cfg.pipeline.name),
+        0,
+        "refused before creating its node"
+    );
+}
