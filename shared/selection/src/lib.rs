@@ -18,12 +18,17 @@
 //! between the two ([`RejectionReason::ApproachPathCollision`]).
 //!
 //! The gripper is checked open at `min(width + clearance.opening_clearance_m, max opening)`: the opening the
-//! robot should command ([`SelectedGrasp::opening_m`]). Picks are ordered by quality, then collision
-//! score, and cut to [`SelectionConfig::top_k`].
+//! robot should command ([`SelectedGrasp::opening_m`]). A configuration whose grasp centre lies
+//! within [`SelectionConfig::pick_spacing_m`] of a pick already taken is passed over
+//! (non-maximum suppression in space, counted as `near_better_pick`), so the picks spread over
+//! the objects. Configurations are visited, and picks ordered, by [`SelectionConfig::pick_order`]
+//! (quality by default), then collision score, and cut to [`SelectionConfig::top_k`].
 #![warn(missing_docs)]
 
+pub mod order;
 pub mod overlap;
 
+pub use order::{grasp_centre, PickOrder};
 pub use overlap::boxes_overlap;
 
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
@@ -93,6 +98,11 @@ pub struct SelectionConfig {
     pub check_scene_collision: bool,
     /// How the grid becomes occupied voxels for the scene check.
     pub occupancy: OccupancyConfig,
+    /// A configuration whose grasp centre lies closer than this to a pick already taken is
+    /// passed over, metres (0: no spacing; picks may then be the same grasp millimetres apart).
+    pub pick_spacing_m: f32,
+    /// Which picks come first: `quality` (the paper's), `topmost`, or `centre-first`.
+    pub pick_order: PickOrder,
 }
 
 impl Default for SelectionConfig {
@@ -110,6 +120,8 @@ impl Default for SelectionConfig {
             check_bin_collision: true,
             check_scene_collision: true,
             occupancy: OccupancyConfig::default(),
+            pick_spacing_m: 0.05,
+            pick_order: PickOrder::Quality,
         }
     }
 }
@@ -154,6 +166,11 @@ impl SelectionConfig {
         check_setting(
             metric(c.bin_contact_tolerance_m),
             "bin_contact_tolerance_m",
+            "must lie in [0, 1) m",
+        )?;
+        check_setting(
+            metric(c.pick_spacing_m),
+            "pick_spacing_m",
             "must lie in [0, 1) m",
         )?;
         c.occupancy.validate()?;
@@ -216,6 +233,9 @@ pub struct RejectionCounts {
     pub no_valid_approach: usize,
     /// Configurations never examined because `top_k` better picks were already found.
     pub not_examined: usize,
+    /// Configurations passed over because a better pick lies within `pick_spacing_m`.
+    #[serde(default)]
+    pub near_better_pick: usize,
 }
 
 impl RejectionCounts {
@@ -273,7 +293,8 @@ pub struct SelectedGrasp {
 /// The result of [`select`].
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Selection {
-    /// Picks, best first (quality, then collision score), at most `top_k`.
+    /// Picks, best first (`pick_order`, then collision score), at most `top_k`, at least
+    /// `pick_spacing_m` apart.
     pub picks: Vec<SelectedGrasp>,
     /// Why the other configurations and approaches were rejected.
     pub rejected: RejectionCounts,
@@ -512,27 +533,35 @@ fn select_from(
 ) -> Result<Selection, SelectionError> {
     let checker = GraspChecker::new(cfg, *gripper, *bin, occupancy)?;
     let mut order: Vec<usize> = (0..configs.len()).collect();
-    // Quality descending; NaN qualities sort last (and are rejected as invalid); ties by index.
-    let key = |i: usize| {
-        if configs[i].quality.is_nan() {
-            f32::NEG_INFINITY
-        } else {
-            configs[i].quality
-        }
-    };
+    // Priority descending (not finite: last, and rejected as invalid); ties by index.
+    let priority: Vec<f32> = configs
+        .iter()
+        .map(|c| cfg.pick_order.priority(c, bin))
+        .collect();
+    let key = |i: usize| priority[i];
     order.sort_by(|&a, &b| key(b).total_cmp(&key(a)).then(a.cmp(&b)));
 
     let mut rejected = RejectionCounts::default();
     let mut picks: Vec<SelectedGrasp> = Vec::new();
+    let mut lowest_taken = f32::INFINITY;
     for (rank, &ci) in order.iter().enumerate() {
         let c = &configs[ci];
         // Enough picks, and this and every later configuration rank below all of them.
-        if picks.len() >= cfg.top_k && picks.last().is_some_and(|p| key(ci) < p.quality) {
+        if picks.len() >= cfg.top_k && key(ci) < lowest_taken {
             rejected.not_examined += order.len() - rank;
             break;
         }
         if let Err(reason) = checker.check_configuration(c) {
             rejected.add(reason);
+            continue;
+        }
+        let centre = grasp_centre(c).coords;
+        if cfg.pick_spacing_m > 0.0
+            && picks.iter().any(|p| {
+                (p.workspace_from_gripper.translation.vector - centre).norm() < cfg.pick_spacing_m
+            })
+        {
+            rejected.near_better_pick += 1;
             continue;
         }
         let mut picked = false;
@@ -547,6 +576,7 @@ fn select_from(
                 }
                 Ok(pick) => {
                     picks.push(pick);
+                    lowest_taken = lowest_taken.min(key(ci));
                     picked = true;
                     break;
                 }
@@ -558,8 +588,8 @@ fn select_from(
         }
     }
     picks.sort_by(|a, b| {
-        b.quality
-            .total_cmp(&a.quality)
+        key(b.configuration_index)
+            .total_cmp(&key(a.configuration_index))
             .then(b.collision_score.total_cmp(&a.collision_score))
             .then(a.configuration_index.cmp(&b.configuration_index))
     });
