@@ -1,4 +1,5 @@
 //! Pinhole camera intrinsics and the camera pose relative to the workspace.
+use crate::depth::MAX_IMAGE_SIDE;
 use crate::GeometryError;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -48,9 +49,9 @@ impl CameraIntrinsics {
                 "image width and height must be > 0",
             ));
         }
-        if self.width > 8192 || self.height > 8192 {
+        if self.width > MAX_IMAGE_SIDE || self.height > MAX_IMAGE_SIDE {
             return Err(GeometryError::InvalidIntrinsics(
-                "image larger than 8192 pixels on a side",
+                "image larger than 8192 (MAX_IMAGE_SIDE) pixels on a side",
             ));
         }
         if self.fx <= 0.0 || self.fy <= 0.0 {
