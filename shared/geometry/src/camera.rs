@@ -5,7 +5,11 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Pinhole intrinsics of a depth camera, in pixels.
+///
+/// Read from a file (a configuration table, a dataset), every key is optional: missing keys
+/// take the [`Default`] values; unknown keys are refused.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct CameraIntrinsics {
     /// Image width in pixels.
     pub width: u32,
@@ -19,6 +23,13 @@ pub struct CameraIntrinsics {
     pub cx: f32,
     /// Principal point y in pixels.
     pub cy: f32,
+}
+
+impl Default for CameraIntrinsics {
+    /// [`CameraIntrinsics::default_640x480`].
+    fn default() -> Self {
+        Self::default_640x480()
+    }
 }
 
 impl CameraIntrinsics {
