@@ -32,6 +32,33 @@ const INTERESTING: [u64; 20] = [
     u64::MAX,
 ];
 
+/// Edge values [`Mutation::ReplaceNumber`] writes over a number: zero and signs, non-finite and
+/// out-of-range floats (`1e39` is infinite as `f32`), the edges of `u16`, `u32`, `i64`, `u64`.
+const NUMBER_TOKENS: [&str; 22] = [
+    "0",
+    "-0.0",
+    "1",
+    "-1",
+    "0.5",
+    "1e-45",
+    "1e39",
+    "-1e39",
+    "1e400",
+    "nan",
+    "inf",
+    "-inf",
+    "65535",
+    "65536",
+    "4294967295",
+    "4294967296",
+    "9223372036854775807",
+    "9223372036854775808",
+    "-9223372036854775809",
+    "18446744073709551615",
+    "18446744073709551616",
+    "1e19",
+];
+
 /// Text tokens every text dictionary starts with: numbers at the edges of `u32`, `u64`, `i64`,
 /// `f32` and `f64`, non-finite floats, empty and nested containers, separators.
 const TEXT_TOKENS: [&str; 40] = [
@@ -95,7 +122,13 @@ impl Dictionary {
             while i < seed.len() {
                 let c = seed[i];
                 let start = i;
-                if c.is_ascii_alphabetic() || c == b'_' {
+                if c == b'#' {
+                    // A TOML comment: prose, not vocabulary.
+                    while i < seed.len() && seed[i] != b'\n' {
+                        i += 1;
+                    }
+                    continue;
+                } else if c.is_ascii_alphabetic() || c == b'_' {
                     while i < seed.len()
                         && (seed[i].is_ascii_alphanumeric() || b"_.-".contains(&seed[i]))
                     {
@@ -186,12 +219,20 @@ pub enum Mutation {
         /// Which token.
         token: u16,
     },
-    /// Replaces the number (or word) at or after `at` with a dictionary token.
+    /// Replaces the `nth` word (modulo the number of words) with a dictionary token.
     ReplaceWord {
-        /// Where the search starts.
-        at: u32,
+        /// Which word.
+        nth: u16,
         /// Which token.
         token: u16,
+    },
+    /// Replaces the `nth` number (modulo the number of numbers) with an edge value (`0`, `-1`,
+    /// `nan`, `1e39`, `4294967296`, ...): every setting gets to meet the range checks' edges.
+    ReplaceNumber {
+        /// Which number.
+        nth: u16,
+        /// Which edge value.
+        value: u8,
     },
     /// Inserts random bytes.
     InsertBytes {
@@ -247,6 +288,34 @@ fn pos(at: u32, len: usize) -> usize {
     at as usize % (len + 1)
 }
 
+/// The byte range of the `nth` (modulo their count) maximal run that starts with a byte
+/// `is_start` accepts after a byte `is_part` does not, and goes on while `is_part` accepts.
+fn nth_run(
+    bytes: &[u8],
+    nth: u16,
+    is_start: impl Fn(u8) -> bool,
+    is_part: impl Fn(u8) -> bool,
+) -> Option<std::ops::Range<usize>> {
+    let mut runs = Vec::new();
+    let mut i = 0;
+    while i < bytes.len() {
+        if is_start(bytes[i]) && (i == 0 || !is_part(bytes[i - 1])) {
+            let start = i;
+            while i < bytes.len() && is_part(bytes[i]) {
+                i += 1;
+            }
+            runs.push(start..i);
+        } else {
+            i += 1;
+        }
+    }
+    if runs.is_empty() {
+        return None;
+    }
+    let n = runs.len();
+    Some(runs.swap_remove(nth as usize % n))
+}
+
 impl Mutated {
     /// The seed `seed` of `seeds` with the edits applied. `seeds` must not be empty.
     pub fn apply(&self, seeds: &[Vec<u8>], dict: &Dictionary) -> Vec<u8> {
@@ -297,13 +366,22 @@ impl Mutation {
                 let at = pos(at, len);
                 out.splice(at..at, dict.get(token).iter().copied());
             }
-            Mutation::ReplaceWord { at, token } => {
-                let start = pos(at, len);
-                let is_word = |b: u8| b.is_ascii_alphanumeric() || b"_.+-".contains(&b);
-                if let Some(offset) = out[start..].iter().position(|&b| is_word(b)) {
-                    let s = start + offset;
-                    let e = s + out[s..].iter().take_while(|&&b| is_word(b)).count();
-                    out.splice(s..e, dict.get(token).iter().copied());
+            Mutation::ReplaceWord { nth, token } => {
+                let is_start = |b: u8| b.is_ascii_alphabetic() || b == b'_';
+                let is_word = |b: u8| b.is_ascii_alphanumeric() || b == b'_';
+                if let Some(r) = nth_run(out, nth, is_start, is_word) {
+                    out.splice(r, dict.get(token).iter().copied());
+                }
+            }
+            Mutation::ReplaceNumber { nth, value } => {
+                let is_start = |b: u8| b.is_ascii_digit();
+                let is_number = |b: u8| b.is_ascii_digit() || b"._eE+-".contains(&b);
+                if let Some(mut r) = nth_run(out, nth, is_start, is_number) {
+                    if r.start > 0 && out[r.start - 1] == b'-' {
+                        r.start -= 1;
+                    }
+                    let v = NUMBER_TOKENS[value as usize % NUMBER_TOKENS.len()];
+                    out.splice(r, v.bytes());
                 }
             }
             Mutation::InsertBytes { at, ref bytes } => {
@@ -358,6 +436,9 @@ mod tests {
         let has = |w: &[u8]| d.tokens.iter().any(|t| t == w);
         assert!(has(b"camera") && has(b"rate_hz") && has(b"nan"));
         assert!(!has(b"["), "single bytes are not words");
+        let commented = Dictionary::text(&[b"# prose here\nkey = 1\n".to_vec()]);
+        assert!(!commented.tokens.iter().any(|t| t == b"prose"));
+        assert!(commented.tokens.iter().any(|t| t == b"key"));
     }
 
     #[test]
@@ -372,11 +453,19 @@ mod tests {
             .apply(&s, &d)
         };
         let text = |v: Vec<u8>| String::from_utf8(v).unwrap();
-        // "2.0" is the first word at or after byte 18 ("2.0" starts at byte 19).
-        let nan = d.tokens.iter().position(|t| t == b"nan").unwrap() as u16;
+        // "2.0" is the only number; "rate_hz" the second word.
+        let nan = NUMBER_TOKENS.iter().position(|t| *t == "nan").unwrap() as u8;
         assert_eq!(
-            text(apply(Mutation::ReplaceWord { at: 18, token: nan })),
+            text(apply(Mutation::ReplaceNumber { nth: 7, value: nan })),
             "[camera]\nrate_hz = nan\n"
+        );
+        let camera = d.tokens.iter().position(|t| t == b"camera").unwrap() as u16;
+        assert_eq!(
+            text(apply(Mutation::ReplaceWord {
+                nth: 1,
+                token: camera
+            })),
+            "[camera]\ncamera = 2.0\n"
         );
         assert_eq!(
             apply(Mutation::Integer {
@@ -409,7 +498,8 @@ mod tests {
                 to: 99,
             },
             Mutation::Truncate { at: 1 },
-            Mutation::ReplaceWord { at: 4, token: 0 },
+            Mutation::ReplaceWord { nth: 4, token: 0 },
+            Mutation::ReplaceNumber { nth: 4, value: 0 },
         ] {
             let out = Mutated {
                 seed: 0,
