@@ -397,6 +397,12 @@ impl PipelineConfig {
         c.intrinsics
             .validate()
             .map_err(|e| bad("camera.intrinsics", e.to_string()))?;
+        if !(c.height_above_rim_m.is_finite() && c.height_above_rim_m > 0.0) {
+            return Err(bad(
+                "camera.height_above_rim_m",
+                format!("{} must be > 0 m", c.height_above_rim_m),
+            ));
+        }
         if let Some(pose) = &c.pose {
             let finite = pose
                 .translation
@@ -558,6 +564,8 @@ mod tests {
         assert!(e.to_string().contains("camera.rate_hz"), "{e}");
         let e = parse("[camera]\nrate_hz = nan").unwrap_err();
         assert!(e.to_string().contains("camera.rate_hz"), "{e}");
+        let e = parse("[camera]\nheight_above_rim_m = nan").unwrap_err();
+        assert!(e.to_string().contains("camera.height_above_rim_m"), "{e}");
         assert_eq!(parse("[camera]\nrate_hz = 0").unwrap().camera.rate_hz, 0.0);
         let e = parse("[pipeline]\nloss_timeout_ms = 18446744073710").unwrap_err();
         assert!(e.to_string().contains("pipeline.loss_timeout_ms"), "{e}");

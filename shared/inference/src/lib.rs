@@ -150,6 +150,15 @@ impl Default for BackendConfig {
 }
 
 impl BackendConfig {
+    /// Checks the backend's settings (ranges; the model files are checked when it is built).
+    pub fn validate(&self) -> Result<(), InferenceError> {
+        match self {
+            Self::Analytic(c) => c.validate(),
+            Self::Learned(c) => c.validate(),
+            Self::Vgn(c) => c.validate(),
+        }
+    }
+
     /// The `kind` tag of this configuration.
     pub fn kind(&self) -> &'static str {
         match self {
