@@ -12,6 +12,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 PNG_DIR = ROOT / "shared/fusion/tests/__fuzz__/depth_png/corpus"
 NPY_DIR = ROOT / "tests/__fuzz__/depth_npy/corpus"
+HEADER_DIR = ROOT / "shared/ipc/tests/__fuzz__/frame_header/corpus"
+GRID_DIR = ROOT / "tests/__fuzz__/grid_message/corpus"
 
 
 def chunk(kind: bytes, data: bytes, crc=None) -> bytes:
@@ -42,6 +44,22 @@ def npy(descr: str, shape: str, body: bytes, version=1, fortran="False") -> byte
     if version == 1:
         return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header.encode()
     return b"\x93NUMPY" + bytes([version, 0]) + struct.pack("<I", len(header)) + header.encode() + body
+
+
+def header(kind, frame_id, status=0, stage=0, count=0, size=(8, 6), dims=(64, 64, 64),
+           version=1, message=b"") -> bytes:
+    """A FrameHeader's little-endian #[repr(C)] bytes (shared/ipc/src/header.rs)."""
+    stamps = [1_700_000_000_000_000_000 + 1000 * i for i in range(8)]
+    out = struct.pack("<IIQIIII", version, kind, frame_id, 0, status, stage, count)
+    out += struct.pack("<8Q", *stamps)
+    out += struct.pack("<2I", *size)
+    out += struct.pack("<4f", 7.25, 7.25, 3.5, 2.5)
+    out += struct.pack("<7f", 0.288, 0.288, 0.9, 1.0, 0.0, 0.0, 0.0)
+    out += struct.pack("<3I", *dims) + struct.pack("<2f", 0.009, 0.036)
+    out += struct.pack("<4HI", 0, 0, 0, 0, 4242)
+    out += message.ljust(164, b"\0")[:164]
+    assert len(out) == 344
+    return out
 
 
 def main():
@@ -85,6 +103,29 @@ def main():
     }
     for name, data in seeds.items():
         (NPY_DIR / name).write_bytes(data)
+
+    HEADER_DIR.mkdir(parents=True, exist_ok=True)
+    seeds = {
+        # A depth frame header followed by its payload (8×6 f32 metres).
+        "depth-frame.bin": header(1, 7, count=48) + struct.pack("<48f", *([0.7] * 48)),
+        # A grid header followed by a 2³-voxel grid (3·8 normals, 8 TSDF values).
+        "grid.bin": header(2, 8, count=32, dims=(2, 2, 2)) + struct.pack("<32f", *([0.5] * 32)),
+        "error-record.bin": header(3, 9, status=3, stage=2, message="no surface in the workspace".encode()),
+        "unknown-status.bin": header(4, 10, status=99, stage=77, message="é".encode() * 100),
+        "old-version.bin": header(1, 11, version=0),
+        "grid-too-large.bin": header(2, 12, dims=(4096, 4096, 4096)),
+    }
+    for name, data in seeds.items():
+        (HEADER_DIR / name).write_bytes(data)
+    # The inference stage's view of a grid message: the same headers with their payloads.
+    GRID_DIR.mkdir(parents=True, exist_ok=True)
+    for name in ["grid.bin", "depth-frame.bin", "grid-too-large.bin"]:
+        (GRID_DIR / name).write_bytes(seeds[name])
+    normals = [0.0, 0.0, 1.0] * 8
+    tsdf = [1.0, 0.5, -0.5, -1.0, 1.5, float("nan"), 0.0, 0.2]
+    (GRID_DIR / "grid-bad-tsdf.bin").write_bytes(
+        header(2, 13, count=32, dims=(2, 2, 2)) + struct.pack("<32f", *(normals[0::3] * 3 + tsdf))
+    )
 
 
 if __name__ == "__main__":

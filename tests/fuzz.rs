@@ -1,10 +1,12 @@
-//! Fuzz targets of camera-ingest's file readers (docs/testing.md, "Fuzzing"): `.npy` depth
-//! frames and intrinsics files (JSON and TOML). Arbitrary bytes give a frame within the size
-//! limit, valid intrinsics or a clean error; never a panic, never an allocation beyond what the
-//! size limit allows.
+//! Fuzz targets of what the stages read from outside (docs/testing.md, "Fuzzing"):
+//! camera-ingest's `.npy` depth frames and intrinsics files (JSON and TOML), and the inference
+//! stage's view of a grid message. Arbitrary bytes give a frame within the size limit, valid
+//! intrinsics, a checked grid or a clean error; never a panic, never an allocation beyond what
+//! the size limit allows.
 use psgrasp::sources::{decode_depth_npy, IntrinsicsFile, IntrinsicsFormat};
 use psgrasp_fuzz_support::{bolero, largest_allocation, Dictionary, Mutated, Target};
 use psgrasp_geometry::{FrameSize, MAX_DEPTH_PIXELS};
+use psgrasp_ipc::{FrameHeader, FRAME_HEADER_SIZE};
 
 #[global_allocator]
 static ALLOC: psgrasp_fuzz_support::TrackingAllocator = psgrasp_fuzz_support::TrackingAllocator;
@@ -80,6 +82,44 @@ fn intrinsics_mutated() {
     bolero::check!(name = "intrinsics_mutated")
         .with_type::<Mutated>()
         .for_each(|m: &Mutated| t.run(&m.apply(&seeds, &dict), parse_intrinsics));
+}
+
+fn grid_target() -> Target {
+    Target::new(env!("CARGO_MANIFEST_DIR"), "grid_message")
+}
+
+/// A grid message: a header (the first [`FRAME_HEADER_SIZE`] bytes, zero-padded) and its `f32`
+/// payload (the rest), as the inference stage receives them.
+fn check_grid_message(bytes: &[u8]) {
+    let n = bytes.len().min(FRAME_HEADER_SIZE);
+    let mut raw = [0u8; FRAME_HEADER_SIZE];
+    raw[..n].copy_from_slice(&bytes[..n]);
+    let header = FrameHeader::from_le_bytes(&raw);
+    let payload: Vec<f32> = bytes[n..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    if let Ok(view) = psgrasp::inference::grid_view(&header, &payload) {
+        let voxels = view.workspace.voxel_count();
+        assert_eq!((view.normals.len(), view.tsdf.len()), (3 * voxels, voxels));
+        let _ = psgrasp_inference::validate_grid(&view);
+    }
+}
+
+#[test]
+fn grid_message() {
+    let t = grid_target();
+    bolero::check!(name = t.name).for_each(|bytes: &[u8]| t.run(bytes, check_grid_message));
+}
+
+#[test]
+fn grid_message_mutated() {
+    let t = grid_target();
+    let seeds = t.seeds();
+    let dict = Dictionary::binary(&[]);
+    bolero::check!(name = "grid_message_mutated")
+        .with_type::<Mutated>()
+        .for_each(|m: &Mutated| t.run(&m.apply(&seeds, &dict), check_grid_message));
 }
 
 fn seed(name: &str) -> Vec<u8> {

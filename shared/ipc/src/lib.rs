@@ -25,7 +25,9 @@ pub mod records;
 pub mod tracker;
 pub mod transport;
 
-pub use header::{now_ns, FrameHeader, MessageKind, Stage, Stamp, StatusCode, PROTOCOL_VERSION};
+pub use header::{
+    now_ns, FrameHeader, MessageKind, Stage, Stamp, StatusCode, FRAME_HEADER_SIZE, PROTOCOL_VERSION,
+};
 pub use records::{
     GraspRecord, NextPickMode, NextPickRequest, NextPickResponse, NextPickStatus, PickRecord,
     StageStats,
