@@ -4,24 +4,24 @@ use std::fs::File;
 use std::io::{BufReader, BufWriter, Read};
 use std::path::Path;
 
-/// Errors reading or writing depth PNGs.
+/// Errors reading or writing depth PNGs. Each message names its cause, which is therefore not
+/// also the [`source`](std::error::Error::source) (`{:#}` would print it twice).
 #[derive(Debug, thiserror::Error)]
 pub enum DepthPngError {
     /// The file could not be opened or created.
-    #[error("depth png {path}: {source}")]
+    #[error("depth png {path}: {error}")]
     Io {
         /// The file.
         path: String,
         /// The cause.
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The PNG stream is malformed.
     #[error("decoding depth png: {0}")]
-    Decode(#[from] png::DecodingError),
+    Decode(png::DecodingError),
     /// Writing the PNG stream failed.
     #[error("encoding depth png: {0}")]
-    Encode(#[from] png::EncodingError),
+    Encode(png::EncodingError),
     /// The PNG is not single-channel 16-bit.
     #[error("depth png must be 16-bit grayscale, got {color:?} at {bits} bits")]
     UnsupportedFormat {
@@ -33,6 +33,18 @@ pub enum DepthPngError {
     /// Bad unit, pixel count or frame size (the header's size is refused before decoding).
     #[error(transparent)]
     Depth(#[from] DepthError),
+}
+
+impl From<png::DecodingError> for DepthPngError {
+    fn from(e: png::DecodingError) -> Self {
+        Self::Decode(e)
+    }
+}
+
+impl From<png::EncodingError> for DepthPngError {
+    fn from(e: png::EncodingError) -> Self {
+        Self::Encode(e)
+    }
 }
 
 /// Reads a 16-bit grayscale PNG whose counts are `unit_m` metres each (0.001 for millimetres);
@@ -51,9 +63,9 @@ pub fn load_depth_png_sized(
 ) -> Result<DepthImage, DepthPngError> {
     check_unit(unit_m)?;
     let path = path.as_ref();
-    let file = File::open(path).map_err(|source| DepthPngError::Io {
+    let file = File::open(path).map_err(|error| DepthPngError::Io {
         path: path.display().to_string(),
-        source,
+        error,
     })?;
     decode(BufReader::new(file), unit_m, size)
 }
@@ -118,9 +130,9 @@ pub fn save_depth_png(
         .into());
     }
     let path = path.as_ref();
-    let file = File::create(path).map_err(|source| DepthPngError::Io {
+    let file = File::create(path).map_err(|error| DepthPngError::Io {
         path: path.display().to_string(),
-        source,
+        error,
     })?;
     let mut encoder = png::Encoder::new(BufWriter::new(file), depth.width, depth.height);
     encoder.set_color(png::ColorType::Grayscale);

@@ -59,8 +59,9 @@ use std::path::Path;
 /// matching variants below.
 #[derive(Debug, thiserror::Error)]
 pub enum InferenceError {
-    /// The grid's workspace description is unusable (zero dimension, bad voxel size).
-    #[error("invalid workspace: {0}")]
+    /// The grid's workspace description is unusable (zero dimension, bad voxel size); the
+    /// message is the workspace check's own ("invalid workspace: ...").
+    #[error(transparent)]
     Workspace(#[from] GeometryError),
     /// The normal grid is unusable (buffer lengths, non-finite values, TSDF range, truncation);
     /// the checks and messages are the grid's own (`NormalGridView::validate`).
@@ -78,8 +79,8 @@ pub enum InferenceError {
         reason: &'static str,
     },
     /// A learned or VGN model could not be loaded or run (card mismatch, corrupt file, runtime
-    /// error).
-    #[error("learned model: {0}")]
+    /// error); message and cause are the [`ModelError`]'s own.
+    #[error(transparent)]
     Model(#[from] ModelError),
     /// A backend failed for a reason of its own (model file, runtime, device ...).
     #[error("backend `{backend}` failed")]
