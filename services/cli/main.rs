@@ -1,5 +1,5 @@
 //! `psgrasp`: the one entry point for people — run the pipeline, the demo, the stress test.
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::{Parser, Subcommand};
 use psgrasp::launcher::{default_bin_dir, Supervisor};
 use psgrasp::stress;
@@ -266,8 +266,8 @@ fn up(config: PathBuf) -> Result<()> {
 }
 
 fn demo(config: PathBuf, frames: u64, seed: u64, top: usize) -> Result<()> {
-    let mut cfg =
-        PipelineConfig::load(&config).with_context(|| format!("loading {}", config.display()))?;
+    // The error names the file already.
+    let mut cfg = PipelineConfig::load(&config)?;
     cfg.pipeline.name = format!("demo-{}", std::process::id());
     cfg.camera.source = psgrasp_config::SourceKind::Synthetic;
     cfg.camera.frames = frames;
