@@ -7,7 +7,7 @@
 //! [`source_from_config`] under a new `camera.source` kind. Everything downstream is unchanged.
 use anyhow::{bail, Context, Result};
 use psgrasp_config::{PipelineConfig, SourceKind};
-use psgrasp_geometry::{CameraIntrinsics, CameraModel, DepthImage};
+use psgrasp_geometry::{CameraIntrinsics, CameraModel, DepthImage, FrameSize, MAX_DEPTH_PIXELS};
 use psgrasp_ipc::now_ns;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -121,27 +121,37 @@ pub struct IntrinsicsFile {
     pub depth_unit_m: Option<f32>,
 }
 
+/// The syntax of an intrinsics file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum IntrinsicsFormat {
+    /// JSON (any file not ending in `.toml`).
+    Json,
+    /// TOML (`.toml`).
+    Toml,
+}
+
 impl IntrinsicsFile {
-    /// Reads and validates an intrinsics file.
+    /// Reads and validates an intrinsics file (TOML if it ends in `.toml`, else JSON).
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("reading intrinsics {}", path.display()))?;
-        let file: Self = if path.extension().is_some_and(|e| e == "toml") {
-            toml::from_str(&text)
-                .with_context(|| format!("parsing intrinsics {}", path.display()))?
+        let format = if path.extension().is_some_and(|e| e == "toml") {
+            IntrinsicsFormat::Toml
         } else {
-            serde_json::from_str(&text)
-                .with_context(|| format!("parsing intrinsics {}", path.display()))?
+            IntrinsicsFormat::Json
         };
-        file.intrinsics()
-            .validate()
-            .with_context(|| format!("intrinsics {}", path.display()))?;
+        Self::parse(&text, format).with_context(|| format!("intrinsics {}", path.display()))
+    }
+
+    /// Parses and validates the text of an intrinsics file.
+    pub fn parse(text: &str, format: IntrinsicsFormat) -> Result<Self> {
+        let file: Self = match format {
+            IntrinsicsFormat::Toml => toml::from_str(text).context("parsing")?,
+            IntrinsicsFormat::Json => serde_json::from_str(text).context("parsing")?,
+        };
+        file.intrinsics().validate()?;
         if let Some(u) = file.depth_unit_m {
-            anyhow::ensure!(
-                u.is_finite() && u > 0.0,
-                "intrinsics {}: depth_unit_m {u} must be > 0",
-                path.display()
-            );
+            anyhow::ensure!(u.is_finite() && u > 0.0, "depth_unit_m {u} must be > 0");
         }
         Ok(file)
     }
@@ -247,17 +257,8 @@ impl DepthSource for ReplaySource {
         }
         let path = self.files[self.next].clone();
         self.next += 1;
-        let depth = load_depth_file(&path, self.unit_m)?;
-        if depth.width != self.intrinsics.width || depth.height != self.intrinsics.height {
-            bail!(
-                "{}: frame is {}×{} but the intrinsics say {}×{}",
-                path.display(),
-                depth.width,
-                depth.height,
-                self.intrinsics.width,
-                self.intrinsics.height
-            );
-        }
+        // Held to the intrinsics' size from the file header, before the pixels are decoded.
+        let depth = load_depth_file_sized(&path, self.unit_m, FrameSize::of(&self.intrinsics))?;
         let camera = self.camera_for(&depth)?;
         Ok(Some(SourceFrame {
             depth,
@@ -288,12 +289,19 @@ pub fn list_depth_files(path: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// Loads a 16-bit PNG (counts × `unit_m`) or a 2-D `.npy` (`<u2` counts × `unit_m`, or `<f4`/`<f8` metres).
+/// Loads a 16-bit PNG (counts × `unit_m`) or a 2-D `.npy` (`<u2` counts × `unit_m`, or `<f4`/`<f8`
+/// metres) of any size within [`FrameSize::Bounded`].
 pub fn load_depth_file(path: &Path, unit_m: f32) -> Result<DepthImage> {
+    load_depth_file_sized(path, unit_m, FrameSize::Bounded)
+}
+
+/// [`load_depth_file`] for frames of `size` (the replay source passes its camera's): the file
+/// header's width and height are checked before the pixels are read or decoded.
+pub fn load_depth_file_sized(path: &Path, unit_m: f32, size: FrameSize) -> Result<DepthImage> {
     match path.extension().and_then(|e| e.to_str()) {
-        Some("png") => psgrasp_fusion::load_depth_png(path, unit_m)
+        Some("png") => psgrasp_fusion::load_depth_png_sized(path, unit_m, size)
             .with_context(|| format!("reading {}", path.display())),
-        Some("npy") => load_depth_npy(path, unit_m),
+        Some("npy") => load_depth_npy_sized(path, unit_m, size),
         _ => bail!(
             "{}: unsupported depth file (expected .png or .npy)",
             path.display()
@@ -301,78 +309,160 @@ pub fn load_depth_file(path: &Path, unit_m: f32) -> Result<DepthImage> {
     }
 }
 
-/// Minimal `.npy` reader for 2-D little-endian `u2`, `f4` or `f8` arrays in C order.
+/// Longest `.npy` header read, bytes (numpy's own reader stops at 10 000 by default).
+pub const MAX_NPY_HEADER_BYTES: usize = 65_536;
+
+/// Minimal `.npy` reader for 2-D little-endian `u2`, `f4` or `f8` arrays in C order, of any
+/// size within [`FrameSize::Bounded`].
 pub fn load_depth_npy(path: &Path, unit_m: f32) -> Result<DepthImage> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let err = |m: &str| anyhow::anyhow!("{}: {m}", path.display());
-    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        return Err(err("not a .npy file"));
-    }
+    load_depth_npy_sized(path, unit_m, FrameSize::Bounded)
+}
+
+/// [`load_depth_npy`] for frames of `size`; a file longer than any frame of that size can be is
+/// refused before it is read.
+pub fn load_depth_npy_sized(path: &Path, unit_m: f32, size: FrameSize) -> Result<DepthImage> {
+    let context = || format!("reading {}", path.display());
+    let len = std::fs::metadata(path).with_context(context)?.len();
+    let max_pixels = match size {
+        FrameSize::Bounded => MAX_DEPTH_PIXELS,
+        FrameSize::Exactly { width, height } => u64::from(width) * u64::from(height),
+    };
+    // The largest file a frame of `size` makes: the longest header and 8 bytes a pixel (`<f8`).
+    let max_len = (12 + MAX_NPY_HEADER_BYTES as u64) + 8 * max_pixels;
+    anyhow::ensure!(
+        len <= max_len,
+        "{}: {len} bytes, more than any accepted depth frame's .npy ({max_len} bytes)",
+        path.display()
+    );
+    let bytes = std::fs::read(path).with_context(context)?;
+    decode_depth_npy(&bytes, unit_m, size).with_context(context)
+}
+
+/// The `.npy` reader of [`load_depth_npy_sized`] for a file already in memory: the header is
+/// parsed and its shape checked against `size` (with checked arithmetic) before any pixel is
+/// converted.
+pub fn decode_depth_npy(bytes: &[u8], unit_m: f32, size: FrameSize) -> Result<DepthImage> {
+    anyhow::ensure!(
+        bytes.len() >= 10 && bytes.starts_with(b"\x93NUMPY"),
+        "not a .npy file"
+    );
     let (header_len, start) = match bytes[6] {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        1 => (usize::from(u16::from_le_bytes([bytes[8], bytes[9]])), 10),
         2 | 3 if bytes.len() >= 12 => (
             u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
             12,
         ),
-        _ => return Err(err("unsupported .npy version")),
+        2 | 3 => bail!("truncated header"),
+        v => bail!("unsupported .npy version {v}"),
     };
-    let header = std::str::from_utf8(
-        bytes
-            .get(start..start + header_len)
-            .ok_or_else(|| err("truncated header"))?,
-    )
-    .map_err(|_| err("header is not UTF-8"))?;
-    if header.contains("'fortran_order': True") {
-        return Err(err("Fortran-order arrays are not supported"));
+    anyhow::ensure!(
+        header_len <= MAX_NPY_HEADER_BYTES,
+        "header of {header_len} bytes (at most {MAX_NPY_HEADER_BYTES})"
+    );
+    let header = bytes
+        .get(start..start + header_len)
+        .context("truncated header")?;
+    let header = std::str::from_utf8(header).context("header is not UTF-8")?;
+    let header = NpyHeader::parse(header)?;
+    anyhow::ensure!(
+        !header.fortran_order,
+        "Fortran-order arrays are not supported"
+    );
+    let [h, w] = header.shape[..] else {
+        bail!(
+            "expected a 2-D array (height, width), got shape {:?}",
+            header.shape
+        );
+    };
+    size.check(w, h)?;
+    let item = match header.descr {
+        "<u2" | "|u2" => 2,
+        "<f4" => 4,
+        "<f8" => 8,
+        other => bail!("unsupported dtype {other} (use <u2, <f4 or <f8)"),
+    };
+    if item == 2 {
+        anyhow::ensure!(
+            unit_m.is_finite() && unit_m > 0.0,
+            "depth unit must be a positive finite number of metres, got {unit_m}"
+        );
     }
-    let descr = header
-        .split("'descr':")
-        .nth(1)
-        .and_then(|s| s.split('\'').nth(1))
-        .ok_or_else(|| err("no descr"))?;
-    let shape_txt = header
-        .split("'shape':")
-        .nth(1)
-        .and_then(|s| s.split(['(', ')']).nth(1))
-        .ok_or_else(|| err("no shape"))?;
-    let shape: Vec<usize> = shape_txt
-        .split(',')
-        .filter(|s| !s.trim().is_empty())
-        .map(|s| s.trim().parse())
-        .collect::<Result<_, _>>()
-        .map_err(|_| err("bad shape"))?;
-    if shape.len() != 2 {
-        return Err(err("expected a 2-D array (height, width)"));
-    }
-    let (h, w) = (shape[0], shape[1]);
+    // Within the size limit, so neither product can overflow.
+    let n = (w * h) as usize;
     let data = &bytes[start + header_len..];
-    let n = h * w;
-    let values: Vec<f32> = match descr {
-        "<u2" | "|u2" => data
+    anyhow::ensure!(
+        data.len() >= n * item,
+        "file is shorter than its shape says ({} data bytes, {h}×{w} of {} needs {})",
+        data.len(),
+        header.descr,
+        n * item
+    );
+    let data = &data[..n * item];
+    let values: Vec<f32> = match item {
+        2 => data
             .chunks_exact(2)
-            .take(n)
-            .map(|c| u16::from_le_bytes([c[0], c[1]]) as f32 * unit_m)
+            .map(|c| f32::from(u16::from_le_bytes([c[0], c[1]])) * unit_m)
             .collect(),
-        "<f4" => data
+        4 => data
             .chunks_exact(4)
-            .take(n)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect(),
-        "<f8" => data
+        _ => data
             .chunks_exact(8)
-            .take(n)
             .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")) as f32)
             .collect(),
-        other => {
-            return Err(err(&format!(
-                "unsupported dtype {other} (use <u2, <f4 or <f8)"
-            )))
-        }
     };
-    if values.len() != n {
-        return Err(err("file is shorter than its shape says"));
+    Ok(DepthImage::from_metres(w as u32, h as u32, values)?)
+}
+
+/// The fields of a `.npy` header (a Python dict literal) the reader needs.
+#[derive(Debug, PartialEq)]
+struct NpyHeader<'a> {
+    descr: &'a str,
+    fortran_order: bool,
+    shape: Vec<u64>,
+}
+
+impl<'a> NpyHeader<'a> {
+    fn parse(text: &'a str) -> Result<Self> {
+        // The text after `'key':` (or `"key":`), leading spaces dropped.
+        let value = |key: &str| -> Option<&'a str> {
+            ["'", "\""].iter().find_map(|q| {
+                let at = text.find(&format!("{q}{key}{q}"))? + key.len() + 2;
+                text[at..]
+                    .trim_start()
+                    .strip_prefix(':')
+                    .map(str::trim_start)
+            })
+        };
+        let descr = value("descr")
+            .and_then(|v| {
+                let q = v.chars().next().filter(|c| *c == '\'' || *c == '"')?;
+                v[1..].split(q).next()
+            })
+            .context("no descr")?;
+        let fortran_order = match value("fortran_order") {
+            Some(v) if v.starts_with("True") => true,
+            Some(v) if v.starts_with("False") => false,
+            _ => bail!("no fortran_order"),
+        };
+        let shape_txt = value("shape")
+            .and_then(|v| v.strip_prefix('('))
+            .and_then(|v| v.split(')').next())
+            .context("no shape")?;
+        let shape = shape_txt
+            .split(',')
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+            .map(|s| s.parse::<u64>())
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|_| anyhow::anyhow!("bad shape ({shape_txt})"))?;
+        Ok(Self {
+            descr,
+            fortran_order,
+            shape,
+        })
     }
-    DepthImage::from_metres(w as u32, h as u32, values).map_err(|e| err(&e.to_string()))
 }
 
 /// Writes a 2-D `<f4` `.npy` file (metres), e.g. to record synthetic frames for replay.
@@ -411,14 +501,65 @@ mod tests {
         assert_eq!(back.data[4], 1.0);
         assert!(back.data[3].is_nan());
         std::fs::write(dir.join("bad.npy"), b"hello").unwrap();
-        assert!(load_depth_npy(&dir.join("bad.npy"), 0.001)
-            .unwrap_err()
-            .to_string()
-            .contains("not a .npy"));
+        let err = load_depth_npy(&dir.join("bad.npy"), 0.001).unwrap_err();
+        assert!(
+            format!("{err:#}").contains("bad.npy: not a .npy"),
+            "{err:#}"
+        );
         let mut truncated = std::fs::read(&p).unwrap();
         truncated.truncate(truncated.len() - 4);
         std::fs::write(dir.join("short.npy"), truncated).unwrap();
         assert!(load_depth_npy(&dir.join("short.npy"), 0.001).is_err());
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn replay_holds_frames_to_the_intrinsics_size_from_the_header() {
+        let dir = std::env::temp_dir().join(format!("psgrasp-replay-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("frame.npy");
+        save_depth_npy(&p, &DepthImage::from_metres(3, 2, vec![0.7; 6]).unwrap()).unwrap();
+        let mut cfg = PipelineConfig::default();
+        cfg.camera.source = SourceKind::Replay;
+        cfg.camera.replay.path = p.clone();
+        cfg.camera.pose = Some(psgrasp_config::PoseConfig {
+            translation: [0.3, 0.3, 0.9],
+            rotation_xyzw: [1.0, 0.0, 0.0, 0.0],
+        });
+        let mut source = ReplaySource::new(&cfg).unwrap();
+        let err = source.next_frame().unwrap_err();
+        assert!(
+            format!("{err:#}").ends_with("depth frame is 3×2 but the camera is 640×480"),
+            "{err:#}"
+        );
+        cfg.camera.intrinsics.width = 3;
+        cfg.camera.intrinsics.height = 2;
+        cfg.camera.intrinsics.cx = 1.0;
+        cfg.camera.intrinsics.cy = 0.5;
+        let frame = ReplaySource::new(&cfg)
+            .unwrap()
+            .next_frame()
+            .unwrap()
+            .unwrap();
+        assert_eq!((frame.depth.width, frame.depth.height), (3, 2));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn intrinsics_files_parse_as_json_and_toml() {
+        let json = r#"{"width": 8, "height": 6, "fx": 7.0, "fy": 7.0, "cx": 3.5, "cy": 2.5}"#;
+        let f = IntrinsicsFile::parse(json, IntrinsicsFormat::Json).unwrap();
+        assert_eq!((f.width, f.height, f.depth_unit_m), (8, 6, None));
+        let toml = "width = 8\nheight = 6\nfx = 7.0\nfy = 7.0\ncx = 3.5\ncy = 2.5\ndepth_unit_m = 0.0001\n";
+        let f = IntrinsicsFile::parse(toml, IntrinsicsFormat::Toml).unwrap();
+        assert_eq!(f.depth_unit_m, Some(0.0001));
+        let err = IntrinsicsFile::parse(&json.replace("7.0,", "-7.0,"), IntrinsicsFormat::Json)
+            .unwrap_err();
+        assert!(
+            format!("{err:#}").contains("focal lengths must be > 0"),
+            "{err:#}"
+        );
+        let err = IntrinsicsFile::parse(json, IntrinsicsFormat::Toml).unwrap_err();
+        assert!(format!("{err:#}").starts_with("parsing: "), "{err:#}");
     }
 }

@@ -1,5 +1,5 @@
 //! `psgrasp`: the one entry point for people — run the pipeline, the demo, the stress test.
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::{Parser, Subcommand};
 use psgrasp::launcher::{default_bin_dir, Supervisor};
 use psgrasp::{run, stress};
@@ -96,13 +96,43 @@ enum Command {
     Eval(psgrasp_eval::EvalArgs),
 }
 
+/// Exit status of a command whose stdout was closed under it (`psgrasp check-config | head`):
+/// 128 + SIGPIPE, what the shell reports for a tool the signal ended.
+const BROKEN_PIPE_EXIT: u8 = 128 + libc::SIGPIPE as u8;
+
+/// True for the panic of `println!` on a closed stdout. (Rust ignores SIGPIPE, so the write fails
+/// with EPIPE; restoring the signal instead would end `psgrasp up` without stopping its stages.)
+fn is_broken_stdout(message: Option<&str>) -> bool {
+    let broken = std::io::Error::from_raw_os_error(libc::EPIPE);
+    message == Some(format!("failed printing to stdout: {broken}").as_str())
+}
+
 fn main() -> std::process::ExitCode {
     psgrasp::stage::init_logging();
-    match run(Cli::parse()) {
-        Ok(()) => std::process::ExitCode::SUCCESS,
-        Err(e) => {
+    // A closed stdout ends the command quietly, after unwinding has run the destructors (a
+    // supervisor stops its stages) — like any Unix tool, without a panic message.
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if !is_broken_stdout(info.payload_as_str()) {
+            report(info);
+        }
+    }));
+    match std::panic::catch_unwind(|| run(Cli::parse())) {
+        Ok(Ok(())) => std::process::ExitCode::SUCCESS,
+        Ok(Err(e)) => {
             eprintln!("error: {e:#}");
             std::process::ExitCode::FAILURE
+        }
+        Err(payload) => {
+            let message = payload
+                .downcast_ref::<String>()
+                .map(String::as_str)
+                .or_else(|| payload.downcast_ref::<&str>().copied());
+            if is_broken_stdout(message) {
+                std::process::ExitCode::from(BROKEN_PIPE_EXIT)
+            } else {
+                std::panic::resume_unwind(payload)
+            }
         }
     }
 }
@@ -271,8 +301,8 @@ fn up(config: PathBuf) -> Result<()> {
 }
 
 fn demo(config: PathBuf, frames: u64, seed: u64, top: usize) -> Result<()> {
-    let mut cfg =
-        PipelineConfig::load(&config).with_context(|| format!("loading {}", config.display()))?;
+    // The error names the file already.
+    let mut cfg = PipelineConfig::load(&config)?;
     cfg.pipeline.name = format!("demo-{}", std::process::id());
     cfg.camera.source = psgrasp_config::SourceKind::Synthetic;
     cfg.camera.frames = frames;

@@ -12,26 +12,26 @@ use psgrasp_perception::NoUnknownKeys;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// Errors of loading or validating a configuration.
+/// Errors of loading or validating a configuration. The message names the cause itself, which
+/// is therefore not also its [`source`](std::error::Error::source) (an alternate-format chain,
+/// `{:#}`, would print it twice).
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     /// The file could not be read.
-    #[error("cannot read config {path}: {source}")]
+    #[error("cannot read config {path}: {error}")]
     Read {
         /// File path.
         path: PathBuf,
         /// I/O error.
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The TOML is malformed or has unknown/mistyped keys.
-    #[error("malformed config {path}: {source}")]
+    #[error("malformed config {path}: {error}")]
     Parse {
         /// File path (or `<string>`).
         path: PathBuf,
         /// TOML error with line and column.
-        #[source]
-        source: toml::de::Error,
+        error: toml::de::Error,
     },
 
     /// The values are inconsistent or out of range.
@@ -272,9 +272,9 @@ impl PipelineConfig {
     /// file's directory (so `config/default.toml` names `../models/default`), which makes the
     /// file work from any working directory; they are stored as absolute paths.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
             path: path.into(),
-            source,
+            error,
         })?;
         let mut cfg = Self::parse(&text, path)?;
         // Absolute, so a configuration written back out (stress, demo) still names the same files.
@@ -294,9 +294,9 @@ impl PipelineConfig {
     /// Parses and validates TOML text (`origin` names it in errors); unknown keys are refused
     /// at every level.
     pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
-        let cfg: Self = toml::from_str(text).map_err(|source| ConfigError::Parse {
+        let cfg: Self = toml::from_str(text).map_err(|error| ConfigError::Parse {
             path: origin.into(),
-            source,
+            error,
         })?;
         cfg.validate(origin)?;
         Ok(cfg)
@@ -419,6 +419,12 @@ impl PipelineConfig {
         c.intrinsics
             .validate()
             .map_err(|e| bad("camera.intrinsics", e.to_string()))?;
+        if !(c.height_above_rim_m.is_finite() && c.height_above_rim_m > 0.0) {
+            return Err(bad(
+                "camera.height_above_rim_m",
+                format!("{} must be > 0 m", c.height_above_rim_m),
+            ));
+        }
         if let Some(pose) = &c.pose {
             let finite = pose
                 .translation
@@ -580,6 +586,8 @@ mod tests {
         assert!(e.to_string().contains("camera.rate_hz"), "{e}");
         let e = parse("[camera]\nrate_hz = nan").unwrap_err();
         assert!(e.to_string().contains("camera.rate_hz"), "{e}");
+        let e = parse("[camera]\nheight_above_rim_m = nan").unwrap_err();
+        assert!(e.to_string().contains("camera.height_above_rim_m"), "{e}");
         assert_eq!(parse("[camera]\nrate_hz = 0").unwrap().camera.rate_hz, 0.0);
         let e = parse("[pipeline]\nloss_timeout_ms = 18446744073710").unwrap_err();
         assert!(e.to_string().contains("pipeline.loss_timeout_ms"), "{e}");

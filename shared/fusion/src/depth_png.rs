@@ -1,27 +1,27 @@
 //! 16-bit PNG depth frames (the format RealSense tools and most datasets write).
-use psgrasp_geometry::{DepthError, DepthImage};
+use psgrasp_geometry::{DepthError, DepthImage, FrameSize};
 use std::fs::File;
-use std::io::{BufReader, BufWriter};
+use std::io::{BufReader, BufWriter, Read};
 use std::path::Path;
 
-/// Errors reading or writing depth PNGs.
+/// Errors reading or writing depth PNGs. Each message names its cause, which is therefore not
+/// also the [`source`](std::error::Error::source) (`{:#}` would print it twice).
 #[derive(Debug, thiserror::Error)]
 pub enum DepthPngError {
     /// The file could not be opened or created.
-    #[error("depth png {path}: {source}")]
+    #[error("depth png {path}: {error}")]
     Io {
         /// The file.
         path: String,
         /// The cause.
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The PNG stream is malformed.
     #[error("decoding depth png: {0}")]
-    Decode(#[from] png::DecodingError),
+    Decode(png::DecodingError),
     /// Writing the PNG stream failed.
     #[error("encoding depth png: {0}")]
-    Encode(#[from] png::EncodingError),
+    Encode(png::EncodingError),
     /// The PNG is not single-channel 16-bit.
     #[error("depth png must be 16-bit grayscale, got {color:?} at {bits} bits")]
     UnsupportedFormat {
@@ -30,38 +30,72 @@ pub enum DepthPngError {
         /// Bits per sample found.
         bits: u8,
     },
-    /// The image is larger than 8192 pixels on a side.
-    #[error("depth png is {width}×{height}, larger than 8192 on a side")]
-    TooLarge {
-        /// Width.
-        width: u32,
-        /// Height.
-        height: u32,
-    },
-    /// Bad unit or pixel count.
+    /// Bad unit, pixel count or frame size (the header's size is refused before decoding).
     #[error(transparent)]
     Depth(#[from] DepthError),
 }
 
-/// Reads a 16-bit grayscale PNG whose counts are `unit_m` metres each (0.001 for millimetres);
-/// count 0 becomes depth 0 (no measurement).
-pub fn load_depth_png(path: impl AsRef<Path>, unit_m: f32) -> Result<DepthImage, DepthPngError> {
-    if !(unit_m.is_finite() && unit_m > 0.0) {
-        return Err(DepthError::BadUnit(unit_m).into());
+impl From<png::DecodingError> for DepthPngError {
+    fn from(e: png::DecodingError) -> Self {
+        Self::Decode(e)
     }
+}
+
+impl From<png::EncodingError> for DepthPngError {
+    fn from(e: png::EncodingError) -> Self {
+        Self::Encode(e)
+    }
+}
+
+/// Reads a 16-bit grayscale PNG whose counts are `unit_m` metres each (0.001 for millimetres);
+/// count 0 becomes depth 0 (no measurement). Any frame size within [`FrameSize::Bounded`] is
+/// accepted; [`load_depth_png_sized`] holds the frame to a camera's size.
+pub fn load_depth_png(path: impl AsRef<Path>, unit_m: f32) -> Result<DepthImage, DepthPngError> {
+    load_depth_png_sized(path, unit_m, FrameSize::Bounded)
+}
+
+/// [`load_depth_png`] for frames of `size`: the PNG header's width and height are checked
+/// before a pixel is decoded or a buffer allocated.
+pub fn load_depth_png_sized(
+    path: impl AsRef<Path>,
+    unit_m: f32,
+    size: FrameSize,
+) -> Result<DepthImage, DepthPngError> {
+    check_unit(unit_m)?;
     let path = path.as_ref();
-    let file = File::open(path).map_err(|source| DepthPngError::Io {
+    let file = File::open(path).map_err(|error| DepthPngError::Io {
         path: path.display().to_string(),
-        source,
+        error,
     })?;
-    let mut decoder = png::Decoder::new(BufReader::new(file));
+    decode(BufReader::new(file), unit_m, size)
+}
+
+/// [`load_depth_png_sized`] for a PNG already in memory (a frame received whole, a fuzz input).
+pub fn decode_depth_png(
+    bytes: &[u8],
+    unit_m: f32,
+    size: FrameSize,
+) -> Result<DepthImage, DepthPngError> {
+    check_unit(unit_m)?;
+    decode(bytes, unit_m, size)
+}
+
+fn check_unit(unit_m: f32) -> Result<(), DepthPngError> {
+    if unit_m.is_finite() && unit_m > 0.0 {
+        Ok(())
+    } else {
+        Err(DepthError::BadUnit(unit_m).into())
+    }
+}
+
+fn decode(stream: impl Read, unit_m: f32, size: FrameSize) -> Result<DepthImage, DepthPngError> {
+    let mut decoder = png::Decoder::new(stream);
     decoder.set_transformations(png::Transformations::IDENTITY);
     let mut reader = decoder.read_info()?;
     let info = reader.info();
     let (width, height) = (info.width, info.height);
-    if width > 8192 || height > 8192 {
-        return Err(DepthPngError::TooLarge { width, height });
-    }
+    // From the header alone, before the pixel buffer exists.
+    size.check(u64::from(width), u64::from(height))?;
     if info.color_type != png::ColorType::Grayscale || info.bit_depth != png::BitDepth::Sixteen {
         return Err(DepthPngError::UnsupportedFormat {
             color: info.color_type,
@@ -70,12 +104,11 @@ pub fn load_depth_png(path: impl AsRef<Path>, unit_m: f32) -> Result<DepthImage,
     }
     let mut buf = vec![0u8; reader.output_buffer_size()];
     let frame = reader.next_frame(&mut buf)?;
-    let bytes = &buf[..frame.buffer_size()];
-    let raw: Vec<u16> = bytes
+    let metres: Vec<f32> = buf[..frame.buffer_size()]
         .chunks_exact(2)
-        .map(|b| u16::from_be_bytes([b[0], b[1]]))
+        .map(|b| f32::from(u16::from_be_bytes([b[0], b[1]])) * unit_m)
         .collect();
-    Ok(DepthImage::from_u16(width, height, &raw, unit_m)?)
+    Ok(DepthImage::from_metres(width, height, metres)?)
 }
 
 /// Writes `depth` as a 16-bit grayscale PNG in counts of `unit_m` metres (invalid pixels → 0,
@@ -85,9 +118,7 @@ pub fn save_depth_png(
     depth: &DepthImage,
     unit_m: f32,
 ) -> Result<(), DepthPngError> {
-    if !(unit_m.is_finite() && unit_m > 0.0) {
-        return Err(DepthError::BadUnit(unit_m).into());
-    }
+    check_unit(unit_m)?;
     let expected = depth.width as usize * depth.height as usize;
     if depth.data.len() != expected || depth.width == 0 || depth.height == 0 {
         return Err(DepthError::SizeMismatch {
@@ -99,9 +130,9 @@ pub fn save_depth_png(
         .into());
     }
     let path = path.as_ref();
-    let file = File::create(path).map_err(|source| DepthPngError::Io {
+    let file = File::create(path).map_err(|error| DepthPngError::Io {
         path: path.display().to_string(),
-        source,
+        error,
     })?;
     let mut encoder = png::Encoder::new(BufWriter::new(file), depth.width, depth.height);
     encoder.set_color(png::ColorType::Grayscale);

@@ -27,7 +27,9 @@ mod tsdf;
 mod validate;
 
 pub use config::FusionConfig;
-pub use depth_png::{load_depth_png, save_depth_png, DepthPngError};
+pub use depth_png::{
+    decode_depth_png, load_depth_png, load_depth_png_sized, save_depth_png, DepthPngError,
+};
 pub use depth_scale::{correct_depth_scale, estimate_depth_scale, DepthScale, DepthScaleConfig};
 pub use plane::{
     fit_support_plane, workspace_camera_from_plane, PlacementConfig, Plane, PlaneFitConfig,

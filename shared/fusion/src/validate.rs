@@ -10,8 +10,9 @@ pub const TSDF_RANGE_TOLERANCE: f32 = 1e-3;
 /// Why a normal grid is unusable.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum GridError {
-    /// The grid's workspace description is unusable (zero dimension, bad voxel size).
-    #[error("invalid workspace: {0}")]
+    /// The grid's workspace description is unusable (zero dimension, bad voxel size); the
+    /// message is the workspace check's own ("invalid workspace: ...").
+    #[error(transparent)]
     Workspace(#[from] GeometryError),
     /// A grid channel does not have the length its workspace implies.
     #[error("grid {channel} has {got} values, the workspace needs {expected}")]

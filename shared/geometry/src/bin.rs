@@ -5,7 +5,11 @@ use serde::{Deserialize, Serialize};
 
 /// An open box: inner size, wall thickness and where its floor centre sits in the workspace frame.
 /// The bin is axis-aligned with the workspace; its inner floor surface is at `floor_center.z`.
+///
+/// Read from a file (a configuration table, a dataset), every key is optional: missing keys
+/// take the [`Default`] values; unknown keys are refused.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct BinModel {
     /// Inner length (x), width (y) and height (z) in metres.
     pub inner_size_m: [f32; 3],

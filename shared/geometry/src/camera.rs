@@ -1,10 +1,15 @@
 //! Pinhole camera intrinsics and the camera pose relative to the workspace.
+use crate::depth::MAX_IMAGE_SIDE;
 use crate::GeometryError;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Pinhole intrinsics of a depth camera, in pixels.
+///
+/// Read from a file (a configuration table, a dataset), every key is optional: missing keys
+/// take the [`Default`] values; unknown keys are refused.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct CameraIntrinsics {
     /// Image width in pixels.
     pub width: u32,
@@ -18,6 +23,13 @@ pub struct CameraIntrinsics {
     pub cx: f32,
     /// Principal point y in pixels.
     pub cy: f32,
+}
+
+impl Default for CameraIntrinsics {
+    /// [`CameraIntrinsics::default_640x480`].
+    fn default() -> Self {
+        Self::default_640x480()
+    }
 }
 
 impl CameraIntrinsics {
@@ -48,9 +60,9 @@ impl CameraIntrinsics {
                 "image width and height must be > 0",
             ));
         }
-        if self.width > 8192 || self.height > 8192 {
+        if self.width > MAX_IMAGE_SIDE || self.height > MAX_IMAGE_SIDE {
             return Err(GeometryError::InvalidIntrinsics(
-                "image larger than 8192 pixels on a side",
+                "image larger than 8192 (MAX_IMAGE_SIDE) pixels on a side",
             ));
         }
         if self.fx <= 0.0 || self.fy <= 0.0 {

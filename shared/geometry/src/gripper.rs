@@ -9,7 +9,11 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Box dimensions of the gripper, in metres.
+///
+/// Read from a file (a configuration table, a dataset), every key is optional: missing keys
+/// take the [`Default`] values; unknown keys are refused.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct GripperModel {
     /// Largest opening between the finger pads.
     pub max_opening_m: f32,

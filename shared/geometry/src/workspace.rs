@@ -6,7 +6,11 @@ use serde::{Deserialize, Serialize};
 /// The voxel grid over the bin. Voxel `(i, j, k)` has its centre at
 /// `((i + 0.5)·s, (j + 0.5)·s, (k + 0.5)·s)` in the workspace frame; linear index `(i·ny + j)·nz + k`
 /// (x-major, z fastest), the layout of every grid psgrasp stores.
+///
+/// Read from a file (a configuration table, a dataset), every key is optional: missing keys
+/// take the [`Default`] values; unknown keys are refused.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Workspace {
     /// Voxels along x, y, z.
     pub dims: [u32; 3],

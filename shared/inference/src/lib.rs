@@ -34,6 +34,7 @@
 #![warn(missing_docs)]
 
 pub mod analytic;
+mod backend_de;
 pub mod learned;
 mod model_error;
 pub mod onnx;
@@ -50,7 +51,7 @@ pub use vgn::{VgnBackend, VgnCard, VgnConfig, VgnTimings};
 use psgrasp_collision::CollisionError;
 use psgrasp_fusion::{GridError, NormalGridView};
 use psgrasp_geometry::{BinModel, GeometryError, GraspConfiguration, GripperModel, Workspace};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use std::path::Path;
 
 /// Errors raised by inference backends; the errors of the grid checks (`psgrasp-fusion`), the
@@ -58,8 +59,9 @@ use std::path::Path;
 /// matching variants below.
 #[derive(Debug, thiserror::Error)]
 pub enum InferenceError {
-    /// The grid's workspace description is unusable (zero dimension, bad voxel size).
-    #[error("invalid workspace: {0}")]
+    /// The grid's workspace description is unusable (zero dimension, bad voxel size); the
+    /// message is the workspace check's own ("invalid workspace: ...").
+    #[error(transparent)]
     Workspace(#[from] GeometryError),
     /// The normal grid is unusable (buffer lengths, non-finite values, TSDF range, truncation);
     /// the checks and messages are the grid's own (`NormalGridView::validate`).
@@ -77,8 +79,8 @@ pub enum InferenceError {
         reason: &'static str,
     },
     /// A learned or VGN model could not be loaded or run (card mismatch, corrupt file, runtime
-    /// error).
-    #[error("learned model: {0}")]
+    /// error); message and cause are the [`ModelError`]'s own.
+    #[error(transparent)]
     Model(#[from] ModelError),
     /// A backend failed for a reason of its own (model file, runtime, device ...).
     #[error("backend `{backend}` failed")]
@@ -128,8 +130,10 @@ impl<B: InferenceBackend + ?Sized> InferenceBackend for &mut B {
 }
 
 /// Which backend to run and its settings; `kind` selects the variant (`kind = "analytic"`), the
-/// other keys are that backend's fields (all optional, defaults apply).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// other keys are that backend's fields. Every key is optional: without `kind` the table is the
+/// default backend's ([`BackendConfig::default`], analytic), and its missing keys take their
+/// defaults.
+#[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum BackendConfig {
     /// The geometric antipodal backend ([`AnalyticBackend`]).
@@ -147,6 +151,15 @@ impl Default for BackendConfig {
 }
 
 impl BackendConfig {
+    /// Checks the backend's settings (ranges; the model files are checked when it is built).
+    pub fn validate(&self) -> Result<(), InferenceError> {
+        match self {
+            Self::Analytic(c) => c.validate(),
+            Self::Learned(c) => c.validate(),
+            Self::Vgn(c) => c.validate(),
+        }
+    }
+
     /// The `kind` tag of this configuration.
     pub fn kind(&self) -> &'static str {
         match self {
@@ -427,6 +440,34 @@ mod tests {
         );
         let backend = backend_from_config(&cfg, GripperModel::default()).unwrap();
         assert_eq!(backend.name(), "analytic");
+    }
+
+    #[test]
+    fn backend_config_without_kind_is_the_default_backend() {
+        let cfg: BackendConfig = toml::from_str("min_quality = 0.7\n").unwrap();
+        assert_eq!(cfg.kind(), BackendConfig::default().kind());
+        let BackendConfig::Analytic(a) = &cfg else {
+            panic!("analytic expected")
+        };
+        assert_eq!(a.min_quality, 0.7);
+        assert_eq!(
+            toml::from_str::<BackendConfig>("").unwrap(),
+            BackendConfig::default()
+        );
+        // The default backend's keys only: another backend's key is unknown to it.
+        let err = toml::from_str::<BackendConfig>("model_dir = \"m\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("unknown field `model_dir`"), "{err}");
+        // JSON with the nulls of unset options (run records) still round trips.
+        for cfg in [
+            BackendConfig::default(),
+            BackendConfig::for_model_dir(Path::new("/nonexistent/m"), 2),
+        ] {
+            let json = serde_json::to_string(&cfg).unwrap();
+            assert!(json.contains("null"), "{json}");
+            assert_eq!(serde_json::from_str::<BackendConfig>(&json).unwrap(), cfg);
+        }
     }
 
     #[test]

@@ -202,7 +202,63 @@ impl Default for FrameHeader {
     }
 }
 
+/// Size of a [`FrameHeader`] in bytes (its `#[repr(C)]` layout has no padding).
+pub const FRAME_HEADER_SIZE: usize = 344;
+
+/// Reads little-endian fields off the front of a byte slice.
+struct Fields<'a>(&'a [u8]);
+
+impl Fields<'_> {
+    fn take<const N: usize>(&mut self) -> [u8; N] {
+        let (head, rest) = self.0.split_at(N);
+        self.0 = rest;
+        head.try_into().expect("N bytes")
+    }
+
+    fn u16(&mut self) -> u16 {
+        u16::from_le_bytes(self.take())
+    }
+
+    fn u32(&mut self) -> u32 {
+        u32::from_le_bytes(self.take())
+    }
+
+    fn u64(&mut self) -> u64 {
+        u64::from_le_bytes(self.take())
+    }
+
+    fn f32(&mut self) -> f32 {
+        f32::from_le_bytes(self.take())
+    }
+}
+
 impl FrameHeader {
+    /// The header whose little-endian `#[repr(C)]` bytes are `bytes` (layout in
+    /// `docs/architecture.md`), as another process may have written it: every bit pattern is a
+    /// header, and its checks and accessors cope with any of them (fuzz target `frame_header`).
+    pub fn from_le_bytes(bytes: &[u8; FRAME_HEADER_SIZE]) -> Self {
+        let mut f = Fields(bytes);
+        Self {
+            version: f.u32(),
+            kind: f.u32(),
+            frame_id: f.u64(),
+            source_id: f.u32(),
+            status: f.u32(),
+            error_stage: f.u32(),
+            element_count: f.u32(),
+            stamps_ns: std::array::from_fn(|_| f.u64()),
+            image_size: std::array::from_fn(|_| f.u32()),
+            intrinsics: std::array::from_fn(|_| f.f32()),
+            workspace_from_camera: std::array::from_fn(|_| f.f32()),
+            grid_dims: std::array::from_fn(|_| f.u32()),
+            voxel_size_m: f.f32(),
+            truncation_m: f.f32(),
+            workers: std::array::from_fn(|_| f.u16()),
+            last_pid: f.u32(),
+            error_message: f.take(),
+        }
+    }
+
     /// A fresh header for a frame captured at `capture_ns` by `camera`, over `workspace`.
     pub fn new(
         kind: MessageKind,
@@ -361,7 +417,7 @@ mod tests {
 
     #[test]
     fn layout_is_stable() {
-        assert_eq!(size_of::<FrameHeader>(), 344);
+        assert_eq!(size_of::<FrameHeader>(), FRAME_HEADER_SIZE);
         assert_eq!(align_of::<FrameHeader>(), 8);
         assert_eq!(offset_of!(FrameHeader, frame_id), 8);
         assert_eq!(offset_of!(FrameHeader, stamps_ns), 32);
@@ -374,6 +430,43 @@ mod tests {
         assert_eq!(offset_of!(FrameHeader, workers), 168);
         assert_eq!(offset_of!(FrameHeader, last_pid), 176);
         assert_eq!(offset_of!(FrameHeader, error_message), 180);
+    }
+
+    #[test]
+    #[cfg(target_endian = "little")]
+    fn from_le_bytes_reads_the_memory_layout() {
+        let cam = CameraModel::top_down(
+            CameraIntrinsics::default_640x480(),
+            Point3::new(0.3, 0.2, 0.9),
+        );
+        let mut h = FrameHeader::new(
+            MessageKind::NormalGrid,
+            7,
+            2,
+            &cam,
+            &Workspace::default(),
+            9,
+        )
+        .into_error(StatusCode::FusionFailed, Stage::GridFusion, "no surface");
+        h.workers = [1, 2, 3, 4];
+        h.truncation_m = 0.036;
+        // The header's own bytes (x86-64 and aarch64 are little-endian), read field by field.
+        let mut bytes = [0u8; FRAME_HEADER_SIZE];
+        // SAFETY: `FrameHeader` is `#[repr(C)]` of integers, floats and bytes without padding
+        // (`layout_is_stable`); reading its bytes as `u8` is valid.
+        let raw = unsafe {
+            std::slice::from_raw_parts((&h as *const FrameHeader).cast::<u8>(), FRAME_HEADER_SIZE)
+        };
+        bytes.copy_from_slice(raw);
+        let back = FrameHeader::from_le_bytes(&bytes);
+        assert_eq!(back.frame_id, 7);
+        assert_eq!(back.workers, [1, 2, 3, 4]);
+        assert_eq!(back.truncation_m, 0.036);
+        assert_eq!(back.camera().intrinsics, cam.intrinsics);
+        assert_eq!(back.status(), StatusCode::FusionFailed);
+        assert_eq!(back.error_text(), "no surface");
+        assert_eq!(back.stamps_ns, h.stamps_ns);
+        assert_eq!(back.last_pid, h.last_pid);
     }
 
     #[test]

@@ -25,7 +25,9 @@ pub mod ledger;
 pub mod records;
 pub mod transport;
 
-pub use header::{now_ns, FrameHeader, MessageKind, Stage, Stamp, StatusCode, PROTOCOL_VERSION};
+pub use header::{
+    now_ns, FrameHeader, MessageKind, Stage, Stamp, StatusCode, FRAME_HEADER_SIZE, PROTOCOL_VERSION,
+};
 pub use ledger::{is_stale, FrameLedger, ProgressEvent, ProgressKind, RecentIds, Verdict};
 pub use records::{
     GraspRecord, NextPickMode, NextPickRequest, NextPickResponse, NextPickStatus, PickRecord,

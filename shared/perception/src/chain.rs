@@ -10,9 +10,9 @@ use std::time::Instant;
 /// Why the chain failed on a frame, by step.
 #[derive(Debug, thiserror::Error)]
 pub enum PerceptionError {
-    /// The cell's configuration is out of range.
+    /// The cell's configuration is out of range (named in the message, so not a source too).
     #[error("invalid cell configuration: {0}")]
-    Config(#[from] InvalidSetting),
+    Config(InvalidSetting),
     /// Depth-scale correction or fusion failed (bad frame, bad camera).
     #[error(transparent)]
     Fusion(#[from] FusionError),
@@ -25,6 +25,12 @@ pub enum PerceptionError {
     /// The chain was built for external proposals only and was asked to run its backend.
     #[error("this perception chain has no inference backend (external proposals only)")]
     NoBackend,
+}
+
+impl From<InvalidSetting> for PerceptionError {
+    fn from(e: InvalidSetting) -> Self {
+        Self::Config(e)
+    }
 }
 
 /// What the depth-scale correction found on a frame (only when it is enabled).

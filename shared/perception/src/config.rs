@@ -68,11 +68,15 @@ fn invalid(field: &'static str, reason: impl ToString) -> InvalidSetting {
 }
 
 impl CellConfig {
-    /// Checks ranges of every table (the backend's model files are checked when it is built).
+    /// Checks ranges of every table, the inference backend's settings included (its model files
+    /// are checked when it is built).
     pub fn validate(&self) -> Result<(), InvalidSetting> {
         self.workspace
             .validate()
             .map_err(|e| invalid("workspace", e))?;
+        self.inference
+            .validate()
+            .map_err(|e| invalid("inference", e))?;
         self.depth_scale
             .validate()
             .map_err(|e| invalid("depth_scale", e))?;
@@ -96,10 +100,11 @@ impl CellConfig {
         let b = &self.bin;
         let sizes_ok = b.inner_size_m.iter().all(|v| v.is_finite() && *v > 0.0);
         let wall_ok = b.wall_thickness_m.is_finite() && b.wall_thickness_m >= 0.0;
-        if !(sizes_ok && wall_ok) {
+        let centre_ok = b.floor_center.iter().all(|v| v.is_finite());
+        if !(sizes_ok && wall_ok && centre_ok) {
             return Err(invalid(
                 "bin",
-                "inner_size_m must be > 0 and wall_thickness_m ≥ 0",
+                "inner_size_m must be > 0, wall_thickness_m ≥ 0 and floor_center finite",
             ));
         }
         let p = &self.perception;
@@ -205,6 +210,10 @@ mod tests {
         let mut cell = CellConfig::default();
         cell.bin.inner_size_m[0] = f32::NAN;
         assert_eq!(cell.validate().unwrap_err().field, "bin");
+        // Found by the pipeline_config fuzz target: a NaN floor centre placed the camera at NaN.
+        let mut cell = CellConfig::default();
+        cell.bin.floor_center.y = f32::NAN;
+        assert_eq!(cell.validate().unwrap_err().field, "bin");
         // What a stage checks when it starts is checked with the configuration.
         let mut cell = CellConfig::default();
         cell.selection.top_k = 0;
@@ -215,6 +224,19 @@ mod tests {
         cell.fusion.truncation_voxels = -4.0;
         assert_eq!(cell.validate().unwrap_err().field, "fusion");
         assert!(toml::from_str::<CellConfig>("[perception]\nbogus = 1\n").is_err());
+        // The backend's settings too (found by the pipeline_config fuzz target: an infinite
+        // contact region passed the configuration check and stopped the inference stage).
+        let cell: CellConfig = toml::from_str(
+            "[inference.contact_region]\nmin_m = [0.0, 1e39, 0.0]\nmax_m = [1.0, 1.0, 1.0]\n",
+        )
+        .unwrap();
+        let e = cell.validate().unwrap_err();
+        assert_eq!(e.field, "inference");
+        assert!(e.reason.contains("contact_region"), "{e}");
+        let cell: CellConfig =
+            toml::from_str("[inference]\nkind = \"vgn\"\nmodel_dir = \"m\"\nmin_width_m = nan\n")
+                .unwrap();
+        assert!(cell.validate().unwrap_err().reason.contains("min_width_m"));
     }
 
     /// A configuration that embeds the cell as the pipeline, dataset and protocol configs do.

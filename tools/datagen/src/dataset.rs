@@ -323,9 +323,9 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DatagenError> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    let io = |source: std::io::Error, p: &Path| DatagenError::Io {
+    let io = |error: std::io::Error, p: &Path| DatagenError::Io {
         path: p.to_path_buf(),
-        source,
+        error,
     };
     {
         let mut f = std::fs::File::create(&tmp).map_err(|e| io(e, &tmp))?;
@@ -342,18 +342,18 @@ pub fn write_scene(path: &Path, record: &SceneRecord) -> Result<(), DatagenError
 
 /// Reads and validates a scene file.
 pub fn read_scene(path: &Path) -> Result<SceneRecord, DatagenError> {
-    let bytes = std::fs::read(path).map_err(|source| DatagenError::Io {
+    let bytes = std::fs::read(path).map_err(|error| DatagenError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     })?;
     decode_scene(&bytes)
 }
 
 /// Reads only the metadata of a scene file (cheap validity check for resuming).
 pub fn read_scene_meta(path: &Path) -> Result<SceneMeta, DatagenError> {
-    let bytes = std::fs::read(path).map_err(|source| DatagenError::Io {
+    let bytes = std::fs::read(path).map_err(|error| DatagenError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     })?;
     SafeTensors::deserialize(&bytes).map_err(|e| DatagenError::Tensor {
         name: "*".into(),
@@ -448,7 +448,7 @@ impl Manifest {
     pub fn read(dir: &Path) -> Result<Manifest, DatagenError> {
         let path = Self::path(dir);
         let text =
-            std::fs::read_to_string(&path).map_err(|source| DatagenError::Io { path, source })?;
+            std::fs::read_to_string(&path).map_err(|error| DatagenError::Io { path, error })?;
         Ok(serde_json::from_str(&text)?)
     }
 

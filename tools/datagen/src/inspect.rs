@@ -61,9 +61,9 @@ impl RgbImage {
 
     /// Encodes as PNG.
     pub fn write_png(&self, path: &Path) -> Result<(), DatagenError> {
-        let io = |source: std::io::Error| DatagenError::Io {
+        let io = |error: std::io::Error| DatagenError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         };
         let file = std::fs::File::create(path).map_err(io)?;
         let mut enc = png::Encoder::new(std::io::BufWriter::new(file), self.width, self.height);

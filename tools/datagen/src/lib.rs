@@ -31,21 +31,20 @@ pub enum DatagenError {
     /// Scene simulation failed.
     #[error(transparent)]
     Sim(#[from] psgrasp_sim::SimError),
-    /// Fusing the normal grid failed.
+    /// Fusing the normal grid failed (named in the message, so not a source too).
     #[error("normal-grid fusion failed: {0}")]
-    Fusion(#[from] psgrasp_fusion::FusionError),
+    Fusion(psgrasp_fusion::FusionError),
     /// A file could not be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         /// The file.
         path: PathBuf,
-        /// The OS error.
-        #[source]
-        source: std::io::Error,
+        /// The OS error (named in the message).
+        error: std::io::Error,
     },
-    /// JSON metadata could not be encoded or decoded.
+    /// JSON metadata could not be encoded or decoded (named in the message).
     #[error("metadata JSON: {0}")]
-    Json(#[from] serde_json::Error),
+    Json(serde_json::Error),
     /// A tensor is missing or has the wrong dtype or shape.
     #[error("tensor '{name}': {reason}")]
     Tensor {
@@ -79,4 +78,16 @@ pub enum DatagenError {
         /// Encoder message.
         reason: String,
     },
+}
+
+impl From<psgrasp_fusion::FusionError> for DatagenError {
+    fn from(e: psgrasp_fusion::FusionError) -> Self {
+        Self::Fusion(e)
+    }
+}
+
+impl From<serde_json::Error> for DatagenError {
+    fn from(e: serde_json::Error) -> Self {
+        Self::Json(e)
+    }
 }

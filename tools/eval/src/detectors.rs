@@ -251,9 +251,9 @@ impl DetectorList {
 
     /// Reads a detector list file.
     pub fn read(path: &Path) -> Result<Self, EvalError> {
-        let text = std::fs::read_to_string(path).map_err(|source| EvalError::Io {
+        let text = std::fs::read_to_string(path).map_err(|error| EvalError::Io {
             path: path.to_owned(),
-            source,
+            error,
         })?;
         Self::from_toml(&text)
     }

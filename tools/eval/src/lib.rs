@@ -72,14 +72,15 @@ pub enum EvalError {
     /// Building or rendering a scene failed.
     #[error(transparent)]
     Sim(#[from] psgrasp_sim::SimError),
-    /// Fusing the depth image into a normal grid failed.
+    /// Fusing the depth image into a normal grid failed (named in the message).
     #[error("fusion failed: {0}")]
-    Fusion(#[from] psgrasp_fusion::FusionError),
-    /// The detector (inference backend) failed or could not be built.
-    #[error("detector failed: {0}")]
+    Fusion(psgrasp_fusion::FusionError),
+    /// The detector (inference backend) failed or could not be built; the cause (a model error
+    /// has causes of its own) is the source.
+    #[error("detector failed")]
     Inference(#[from] psgrasp_inference::InferenceError),
-    /// A detector could not be built.
-    #[error("detector `{name}`: {source}")]
+    /// A detector could not be built; the cause is the source.
+    #[error("detector `{name}`")]
     Detector {
         /// The detector's name.
         name: String,
@@ -103,12 +104,12 @@ pub enum EvalError {
         /// The names the list holds.
         known: Vec<String>,
     },
-    /// Grasp selection could not run.
+    /// Grasp selection could not run (named in the message).
     #[error("selection failed: {0}")]
-    Selection(#[from] psgrasp_selection::SelectionError),
-    /// The cell's settings are out of range.
+    Selection(psgrasp_selection::SelectionError),
+    /// The cell's settings are out of range (named in the message).
     #[error("invalid cell setting: {0}")]
-    Cell(#[from] psgrasp_perception::InvalidSetting),
+    Cell(psgrasp_perception::InvalidSetting),
     /// A records or run file is unreadable or could not be encoded.
     #[error("{path}: {reason}")]
     Records {
@@ -134,14 +135,31 @@ pub enum EvalError {
         reason: String,
     },
     /// A file could not be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         /// The file.
         path: PathBuf,
-        /// The OS error.
-        #[source]
-        source: std::io::Error,
+        /// The OS error (named in the message).
+        error: std::io::Error,
     },
+}
+
+impl From<psgrasp_fusion::FusionError> for EvalError {
+    fn from(e: psgrasp_fusion::FusionError) -> Self {
+        Self::Fusion(e)
+    }
+}
+
+impl From<psgrasp_selection::SelectionError> for EvalError {
+    fn from(e: psgrasp_selection::SelectionError) -> Self {
+        Self::Selection(e)
+    }
+}
+
+impl From<psgrasp_perception::InvalidSetting> for EvalError {
+    fn from(e: psgrasp_perception::InvalidSetting) -> Self {
+        Self::Cell(e)
+    }
 }
 
 impl From<psgrasp_geometry::OutOfRange> for EvalError {

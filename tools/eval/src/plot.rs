@@ -111,9 +111,9 @@ impl Image {
             path: path.to_owned(),
             reason,
         };
-        let file = std::fs::File::create(path).map_err(|source| EvalError::Io {
+        let file = std::fs::File::create(path).map_err(|error| EvalError::Io {
             path: path.to_owned(),
-            source,
+            error,
         })?;
         let mut enc = png::Encoder::new(std::io::BufWriter::new(file), self.width, self.height);
         enc.set_color(png::ColorType::Rgb);

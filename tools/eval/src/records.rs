@@ -96,9 +96,9 @@ impl RunDescription {
         if !path.exists() {
             return Ok(None);
         }
-        let text = std::fs::read_to_string(&path).map_err(|source| EvalError::Io {
+        let text = std::fs::read_to_string(&path).map_err(|error| EvalError::Io {
             path: path.clone(),
-            source,
+            error,
         })?;
         serde_json::from_str(&text)
             .map(Some)
@@ -156,9 +156,9 @@ impl RunDescription {
 
 /// Writes `bytes` to `path` through a temporary file and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), EvalError> {
-    let io = |source| EvalError::Io {
+    let io = |error| EvalError::Io {
         path: path.to_owned(),
-        source,
+        error,
     };
     let tmp = path.with_extension("tmp");
     std::fs::write(&tmp, bytes).map_err(io)?;
@@ -180,9 +180,9 @@ impl RecordsFile {
     /// rest (rewriting the file when anything was dropped).
     pub fn open(dir: &Path) -> Result<Self, EvalError> {
         let path = dir.join(RECORDS_FILE);
-        let io = |source| EvalError::Io {
+        let io = |error| EvalError::Io {
             path: path.clone(),
-            source,
+            error,
         };
         let text = match std::fs::read_to_string(&path) {
             Ok(t) => t,
@@ -275,9 +275,9 @@ impl RecordsFile {
         self.file
             .write_all(&bytes)
             .and_then(|_| self.file.flush())
-            .map_err(|source| EvalError::Io {
+            .map_err(|error| EvalError::Io {
                 path: self.path.clone(),
-                source,
+                error,
             })?;
         self.lines.extend(lines);
         self.done.insert(key.clone());

@@ -426,8 +426,9 @@ impl ModelCard {
                 format!("must be divisible by 2^(levels-1) = {div}"),
             ));
         }
-        let channel_sum: u32 = self.unet.channels.iter().sum();
-        if self.mlp.feature_dim != channel_sum {
+        // In u64: channel counts near u32::MAX must not wrap into a matching sum.
+        let channel_sum: u64 = self.unet.channels.iter().map(|&c| u64::from(c)).sum();
+        if u64::from(self.mlp.feature_dim) != channel_sum {
             return Err(invalid(
                 "mlp.feature_dim",
                 format!(
@@ -685,6 +686,18 @@ pub(crate) mod tests {
                 Box::new(|c| c.unet.feature_outputs[1] = "e1".into()),
             ),
             ("mlp.feature_dim", Box::new(|c| c.mlp.feature_dim = 64)),
+            // Found by the model_card fuzz target: the sum overflowed (a panic in debug builds).
+            (
+                "mlp.feature_dim",
+                Box::new(|c| c.unet.channels[1] = u32::MAX),
+            ),
+            // A sum that wraps to feature_dim in u32 does not match.
+            (
+                "mlp.feature_dim",
+                Box::new(|c| {
+                    c.unet.channels = vec![u32::MAX, 1, 1, c.mlp.feature_dim - 1];
+                }),
+            ),
             ("kappa0", Box::new(|c| c.kappa0 = -1.0)),
             (
                 "thresholds.contact_probability",
