@@ -163,6 +163,7 @@ pub struct CameraSection {
     /// Camera id written into every header.
     pub source_id: u32,
     /// Intrinsics (synthetic source; replay reads its own intrinsics file unless absent).
+    #[serde(deserialize_with = "psgrasp_geometry::camera::deserialize_intrinsics_strict")]
     pub intrinsics: CameraIntrinsics,
     /// Camera pose in the workspace frame; `None` = top-down above the bin at `height_above_rim_m`
     /// (synthetic) or fitted to the dominant plane (replay).

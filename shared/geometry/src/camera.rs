@@ -6,10 +6,12 @@ use serde::{Deserialize, Serialize};
 
 /// Pinhole intrinsics of a depth camera, in pixels.
 ///
-/// Read from a file (a configuration table, a dataset), every key is optional: missing keys
-/// take the [`Default`] values; unknown keys are refused.
+/// Read from a file, every key is optional (missing keys take the [`Default`] values) and other
+/// keys are ignored: the intrinsics files of camera tools carry more (a depth unit,
+/// distortion). A configuration table, where a misspelt key must fail, is read with
+/// [`deserialize_intrinsics_strict`].
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(default)]
 pub struct CameraIntrinsics {
     /// Image width in pixels.
     pub width: u32,
@@ -23,6 +25,46 @@ pub struct CameraIntrinsics {
     pub cx: f32,
     /// Principal point y in pixels.
     pub cy: f32,
+}
+
+/// Reads [`CameraIntrinsics`] refusing unknown keys (missing keys still take the defaults), for
+/// a configuration's intrinsics table: `#[serde(deserialize_with = "...")]`.
+pub fn deserialize_intrinsics_strict<'de, D: serde::Deserializer<'de>>(
+    deserializer: D,
+) -> Result<CameraIntrinsics, D::Error> {
+    /// The same keys, refusing others.
+    #[derive(Deserialize)]
+    #[serde(default, deny_unknown_fields)]
+    struct Strict {
+        width: u32,
+        height: u32,
+        fx: f32,
+        fy: f32,
+        cx: f32,
+        cy: f32,
+    }
+    impl Default for Strict {
+        fn default() -> Self {
+            let k = CameraIntrinsics::default();
+            Self {
+                width: k.width,
+                height: k.height,
+                fx: k.fx,
+                fy: k.fy,
+                cx: k.cx,
+                cy: k.cy,
+            }
+        }
+    }
+    let s = Strict::deserialize(deserializer)?;
+    Ok(CameraIntrinsics {
+        width: s.width,
+        height: s.height,
+        fx: s.fx,
+        fy: s.fy,
+        cx: s.cx,
+        cy: s.cy,
+    })
 }
 
 impl Default for CameraIntrinsics {

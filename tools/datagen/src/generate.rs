@@ -67,7 +67,9 @@ impl Difficulty {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct GenerationConfig {
-    /// Camera intrinsics (the camera is placed by `psgrasp_sim::default_camera`).
+    /// Camera intrinsics (the camera is placed by `psgrasp_sim::default_camera`); a misspelt key
+    /// fails.
+    #[serde(deserialize_with = "psgrasp_geometry::camera::deserialize_intrinsics_strict")]
     pub intrinsics: CameraIntrinsics,
     /// The cell the data is made for: its workspace (the voxel grid of the training targets),
     /// default bin (the small bin keeps its placement), gripper and fusion; its tables sit at

@@ -231,9 +231,9 @@ impl DetectorSpec {
             .cell()
             .build_backend(backend)
             .map(BuiltDetector::Backend)
-            .map_err(|source| EvalError::Detector {
+            .map_err(|error| EvalError::Detector {
                 name: self.name.clone(),
-                source,
+                error,
             })
     }
 }

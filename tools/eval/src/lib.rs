@@ -75,18 +75,17 @@ pub enum EvalError {
     /// Fusing the depth image into a normal grid failed (named in the message).
     #[error("fusion failed: {0}")]
     Fusion(psgrasp_fusion::FusionError),
-    /// The detector (inference backend) failed or could not be built; the cause (a model error
-    /// has causes of its own) is the source.
-    #[error("detector failed")]
-    Inference(#[from] psgrasp_inference::InferenceError),
-    /// A detector could not be built; the cause is the source.
-    #[error("detector `{name}`")]
+    /// The detector (inference backend) failed or could not be built; the message names the
+    /// cause with its own causes (a model error has some).
+    #[error("detector failed: {}", causes(.0))]
+    Inference(psgrasp_inference::InferenceError),
+    /// A detector could not be built; the message names the cause with its own causes.
+    #[error("detector `{name}`: {}", causes(.error))]
     Detector {
         /// The detector's name.
         name: String,
         /// Why.
-        #[source]
-        source: psgrasp_inference::InferenceError,
+        error: psgrasp_inference::InferenceError,
     },
     /// A detector entry is invalid (bad or duplicate name, unparsable list).
     #[error("detector `{name}`: {reason}")]
@@ -142,6 +141,25 @@ pub enum EvalError {
         /// The OS error (named in the message).
         error: std::io::Error,
     },
+}
+
+/// `e` and its chain of sources, joined by ": " (what `{:#}` prints for an `anyhow::Error`): a
+/// message that names a cause this way does not return it as its source too.
+fn causes(e: &dyn std::error::Error) -> String {
+    let mut out = e.to_string();
+    let mut next = e.source();
+    while let Some(cause) = next {
+        out.push_str(": ");
+        out.push_str(&cause.to_string());
+        next = cause.source();
+    }
+    out
+}
+
+impl From<psgrasp_inference::InferenceError> for EvalError {
+    fn from(e: psgrasp_inference::InferenceError) -> Self {
+        Self::Inference(e)
+    }
 }
 
 impl From<psgrasp_fusion::FusionError> for EvalError {
