@@ -239,7 +239,10 @@ fn next_pick_carries_on_across_a_grasp_selection_restart() {
         }
     }
     let (latest, picks) = latest.unwrap();
-    assert!(picks >= 3, "the latest frame needs three picks, got {picks}");
+    assert!(
+        picks >= 3,
+        "the latest frame needs three picks, got {picks}"
+    );
     let node = PipelineNode::new(
         &format!("{}-controller", cfg.pipeline.name),
         &cfg.pipeline.name,
