@@ -234,9 +234,13 @@ pub fn run_pipeline(
                         next_kill = Some(due + plan.every);
                     }
                 } else if wind_down.is_none() {
-                    let last_restarted = report.kills.last().is_none_or(|k| k.started_ns.is_some());
+                    // The last kill's recovery is measured on frames admitted after it.
+                    let last_done = report.kills.last().is_none_or(|k| {
+                        k.recovered_after.is_some()
+                            || now_ns().saturating_sub(k.at_ns) > drain_limit.as_nanos() as u64
+                    });
                     // Stop the camera once every killed stage is back (or give up waiting).
-                    let all_back = !sup.restart_pending() && last_restarted;
+                    let all_back = !sup.restart_pending() && last_done;
                     if all_back || start.elapsed() >= opts.timeout + drain_limit {
                         sup.stop(Stage::CameraIngest, 0);
                         wind_down = Some(Instant::now());
