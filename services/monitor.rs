@@ -68,6 +68,16 @@ impl PipelineMonitor {
         })
     }
 
+    /// Connects to the pipeline of `cfg` as its monitor (node `<name>-monitor`: one per
+    /// process and pipeline).
+    pub fn of(cfg: &psgrasp_config::PipelineConfig) -> Result<Self> {
+        Self::connect(
+            &format!("{}-monitor", cfg.pipeline.name),
+            &cfg.pipeline.name,
+            cfg.pipeline.channel,
+        )
+    }
+
     /// Waits up to `timeout` for the next outcome. `Ok(None)` on timeout or a termination signal.
     pub fn next_outcome(&mut self, timeout: Duration) -> Result<Option<FrameOutcome>> {
         let deadline = Instant::now() + timeout;

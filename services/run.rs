@@ -147,11 +147,7 @@ pub fn run_pipeline(
     opts: RunOptions,
     bin_dir: &Path,
 ) -> Result<(RunReport, Supervisor)> {
-    let mut monitor = PipelineMonitor::connect(
-        &format!("{}-monitor", cfg.pipeline.name),
-        &cfg.pipeline.name,
-        cfg.pipeline.channel,
-    )?;
+    let mut monitor = PipelineMonitor::of(cfg)?;
     let mut cfg = cfg.clone();
     if opts.chaos.is_some() {
         // The drill's kills are deliberate and isolated: each restart is a first one (shortest

@@ -172,12 +172,7 @@ fn stress_stops_on_the_first_sigint() {
 fn camera_ingest_stops_on_one_sigterm_while_busy() {
     let mut cfg = test_config("sigterm");
     cfg.camera.frames = 1_000_000;
-    let mut monitor = PipelineMonitor::connect(
-        &format!("{}-monitor", cfg.pipeline.name),
-        &cfg.pipeline.name,
-        cfg.pipeline.channel,
-    )
-    .unwrap();
+    let mut monitor = PipelineMonitor::of(&cfg).unwrap();
     let mut sup = Supervisor::launch(&cfg, &bin_dir(), true).unwrap();
     let mut outcomes = 0;
     let deadline = Instant::now() + Duration::from_secs(120);
@@ -218,12 +213,7 @@ fn next_pick_carries_on_across_a_grasp_selection_restart() {
     cfg.camera.frames = 2;
     // The cursor, not the spacing, is under test: many picks per frame.
     cfg.cell.selection.pick_spacing_m = 0.0;
-    let mut monitor = PipelineMonitor::connect(
-        &format!("{}-monitor", cfg.pipeline.name),
-        &cfg.pipeline.name,
-        cfg.pipeline.channel,
-    )
-    .unwrap();
+    let mut monitor = PipelineMonitor::of(&cfg).unwrap();
     let mut sup = Supervisor::launch(&cfg, &bin_dir(), true).unwrap();
     let mut latest = None;
     let mut outcomes = 0;

@@ -104,12 +104,7 @@ fn killing_inference_restarts_it_and_reports_lost_frames() {
     cfg.camera.synthetic.frames_per_scene = 1000;
     cfg.pipeline.loss_timeout_ms = 1500;
     let path = write_temp_config(&cfg, &cfg.pipeline.name).unwrap();
-    let mut monitor = PipelineMonitor::connect(
-        &format!("{}-monitor", cfg.pipeline.name),
-        &cfg.pipeline.name,
-        cfg.pipeline.channel,
-    )
-    .unwrap();
+    let mut monitor = PipelineMonitor::of(&cfg).unwrap();
     let mut sup = Supervisor::start(&path, &bin_dir(), true).unwrap();
     let mut outcomes = BTreeMap::new();
     let start = Instant::now();

@@ -151,12 +151,20 @@ impl StageContext {
     /// Reports on `progress` that the ledger ended frame `frame_id` (grasp-selection then
     /// drops a late result of it).
     pub fn report_verdict(&self, frame_id: u64) {
-        ProgressReporter::new(self).report(ProgressKind::Verdict, frame_id, now_ns());
+        ProgressReporter::new(&self.progress_pub, self.stage, self.worker).report(
+            ProgressKind::Verdict,
+            frame_id,
+            now_ns(),
+        );
     }
 
     /// Reports on `progress` that camera-ingest admitted frame `frame_id` at `stamp_ns`.
     pub fn report_admitted(&self, frame_id: u64, stamp_ns: u64) {
-        ProgressReporter::new(self).report(ProgressKind::Admitted, frame_id, stamp_ns);
+        ProgressReporter::new(&self.progress_pub, self.stage, self.worker).report(
+            ProgressKind::Admitted,
+            frame_id,
+            stamp_ns,
+        );
     }
 
     /// Start-up barrier: waits (up to `camera.wait_for_subscribers_ms`) until every input has at
@@ -246,18 +254,19 @@ impl StageContext {
 
 /// Sends this worker's progress reports (borrows only the context's progress publisher).
 pub struct ProgressReporter<'a> {
-    pub(super) publisher: &'a FramePublisher<ProgressEvent>,
-    pub(super) stage: Stage,
-    pub(super) worker: u32,
+    publisher: &'a FramePublisher<ProgressEvent>,
+    stage: Stage,
+    worker: u32,
 }
 
 impl<'a> ProgressReporter<'a> {
-    /// The reporter of `ctx`'s worker.
-    pub fn new(ctx: &'a StageContext) -> Self {
+    /// The reporter of `worker` of `stage` on `publisher` (a context's `progress_pub`; taking
+    /// the field, not the context, leaves the rest of the context free to change meanwhile).
+    pub fn new(publisher: &'a FramePublisher<ProgressEvent>, stage: Stage, worker: u32) -> Self {
         Self {
-            publisher: &ctx.progress_pub,
-            stage: ctx.stage,
-            worker: ctx.worker,
+            publisher,
+            stage,
+            worker,
         }
     }
 

@@ -209,11 +209,7 @@ pub fn run_stage<S: Stage>(
             }
             let started = Instant::now();
             // The last stage's output is the outcome itself, which the ledger reads.
-            let progress = ProgressReporter {
-                publisher: &ctx.progress_pub,
-                stage: ctx.stage,
-                worker: ctx.worker,
-            };
+            let progress = ProgressReporter::new(&ctx.progress_pub, ctx.stage, ctx.worker);
             let report_left = |sent: &FrameHeader| {
                 if S::STAGE != psgrasp_ipc::Stage::GraspSelection {
                     progress.left(sent.frame_id, sent.stamps_ns[S::END as usize]);
