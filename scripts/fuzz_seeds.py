@@ -47,7 +47,7 @@ def npy(descr: str, shape: str, body: bytes, version=1, fortran="False") -> byte
 
 
 def header(kind, frame_id, status=0, stage=0, count=0, size=(8, 6), dims=(64, 64, 64),
-           version=1, message=b"") -> bytes:
+           version=2, message=b"") -> bytes:
     """A FrameHeader's little-endian #[repr(C)] bytes (shared/ipc/src/header.rs)."""
     stamps = [1_700_000_000_000_000_000 + 1000 * i for i in range(8)]
     out = struct.pack("<IIQIIII", version, kind, frame_id, 0, status, stage, count)

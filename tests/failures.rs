@@ -7,7 +7,7 @@ use psgrasp::launcher::{running_stage_nodes, write_temp_config, Supervisor};
 use psgrasp::monitor::PipelineMonitor;
 use psgrasp::next_pick::PickClient;
 use psgrasp::run::{run_frames, run_pipeline, ChaosPlan, RunOptions};
-use psgrasp_ipc::{NextPickStatus, PipelineNode, Stage, StatusCode};
+use psgrasp_ipc::{NextPickMode, NextPickStatus, PipelineNode, Stage, StatusCode};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -241,8 +241,13 @@ fn next_pick_carries_on_across_a_grasp_selection_restart() {
     .unwrap();
     let client = PickClient::connect(&node).unwrap();
     let ask = |failed| {
+        let mode = if failed {
+            NextPickMode::AfterFailure
+        } else {
+            NextPickMode::Current
+        };
         client
-            .next_pick(failed, Duration::from_secs(20))
+            .next_pick(mode, Duration::from_secs(20))
             .unwrap()
             .unwrap()
     };
@@ -257,7 +262,9 @@ fn next_pick_carries_on_across_a_grasp_selection_restart() {
         move || {
             let node = PipelineNode::new(&format!("{name}-controller-2"), &name, channel).unwrap();
             let client = PickClient::connect(&node).unwrap();
-            client.next_pick(true, Duration::from_secs(30)).unwrap()
+            client
+                .next_pick(NextPickMode::AfterFailure, Duration::from_secs(30))
+                .unwrap()
         }
     });
     while !asking.is_finished() {

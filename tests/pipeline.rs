@@ -274,6 +274,18 @@ fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
         }
         cfg.camera.synthetic.objects = 8;
         cfg.pipeline.seed = 11;
+        // A known hand-eye calibration: the camera 1.1 m above a base whose origin lies 0.4 m
+        // to its side, looking down, turned 30° about the vertical.
+        let base_from_camera = [
+            [0.866_025_403_784_438_6, 0.5, 0.0, 0.4],
+            [0.5, -0.866_025_403_784_438_6, 0.0, -0.1],
+            [0.0, 0.0, -1.0, 1.1],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        cfg.cell.robot.camera_in_base = Some(psgrasp_geometry::PoseSetting {
+            matrix: Some(base_from_camera),
+            ..Default::default()
+        });
         let dir = std::env::temp_dir().join(format!("psgrasp-same-{kind}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let depth = psgrasp::sources::SyntheticSource::new(&cfg)
@@ -305,16 +317,52 @@ fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
         let detection = chain
             .detect(&depth, &header.camera(), cfg.pipeline.seed)
             .unwrap();
+        let base = cfg
+            .cell
+            .robot_cell()
+            .unwrap()
+            .base_frame(&header.camera().workspace_from_camera);
         let in_process = psgrasp::grasp_selection::pick_records(
             &detection.selection,
             &detection.configurations,
             cfg.cell.selection.top_k,
+            &base,
         );
         assert!(!in_process.is_empty(), "{kind}: the frame must have picks");
         assert_eq!(
             outcome.picks, in_process,
             "{kind}: pipeline vs in-process chain"
         );
+        // Every pick in the robot base frame is the calibration applied to its workspace pose:
+        // base ← camera (configured) ← workspace (the frame's camera pose), as plain matrices.
+        let calibration = nalgebra::Matrix4::from_fn(|i, j| base_from_camera[i][j]);
+        let workspace_from_camera = header
+            .camera()
+            .workspace_from_camera
+            .to_homogeneous()
+            .cast::<f64>();
+        let base_from_workspace = calibration * workspace_from_camera.try_inverse().unwrap();
+        for p in &outcome.picks {
+            assert_eq!(p.base_calibrated, 1);
+            let expected = base_from_workspace * p.workspace_from_gripper().to_homogeneous().cast();
+            let got = p.base_from_gripper().to_homogeneous().cast::<f64>();
+            assert!(
+                (expected - got).abs().max() < 1e-5,
+                "{kind}: rank {} base pose\n{got}\nexpected\n{expected}",
+                p.rank
+            );
+            let pre = nalgebra::Point3::from(p.pregrasp_position)
+                .cast::<f64>()
+                .to_homogeneous();
+            let pre_base = base_from_workspace * pre;
+            let got = nalgebra::Vector3::from(p.base_pregrasp_position).cast::<f64>();
+            assert!((pre_base.xyz() - got).norm() < 1e-5, "{kind}: pre-grasp");
+            let cam = p.base_from_camera().to_homogeneous().cast::<f64>();
+            assert!(
+                (cam - calibration).abs().max() < 1e-6,
+                "{kind}: camera pose"
+            );
+        }
     }
 }
 

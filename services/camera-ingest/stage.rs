@@ -230,10 +230,14 @@ pub fn run(args: StageArgs) -> Result<()> {
     ctx.stats.dropped = depth_pub.dropped();
     ctx.publish_stats();
     ctx.log_summary();
-    // A finite source: stay up, accounting for the frames still in flight, until stopped.
+    // A finite source: stay up, accounting for the frames still in flight, until stopped, and
+    // keep reporting statistics (a controller's health check sees an idle camera, not a dead one).
     if cfg.camera.frames > 0 {
         while ctx.node.sleep(LEDGER_TICK) {
             acc.settle(&mut ctx)?;
+            if stats_due(&mut last_stats, cfg.pipeline.stats_interval_ms) {
+                ctx.publish_stats();
+            }
         }
     }
     Ok(())

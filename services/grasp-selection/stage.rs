@@ -5,7 +5,7 @@ use crate::inference::grid_view;
 use crate::next_pick::{state_path, NextPickServer};
 use crate::stage::{run_stage, Output, Sent, Shard, Stage, StageArgs, StageContext, StepFailure};
 use anyhow::Result;
-use psgrasp_geometry::GraspConfiguration;
+use psgrasp_geometry::{BaseFrame, GraspConfiguration, RobotCell};
 use psgrasp_ipc::{
     FrameHeader, FrameSubscriber, GraspRecord, MessageKind, PickRecord, ProgressEvent,
     ProgressKind, RecentIds, Stamp, StatusCode,
@@ -25,6 +25,8 @@ pub struct GraspSelection<'a> {
     step: SelectionStep,
     /// Most picks published per frame (`selection.top_k`).
     max_picks: usize,
+    /// The robot around the cell (`[robot]`): picks are also given in its base frame.
+    robot: RobotCell,
     /// The frames of this worker (its share of the grid side input).
     shard: Shard,
     progress: &'a FrameSubscriber<ProgressEvent>,
@@ -38,6 +40,20 @@ pub struct GraspSelection<'a> {
 }
 
 impl GraspSelection<'_> {
+    /// Moves the grids waiting on the side input into the cache.
+    fn take_grids(&mut self) -> Result<()> {
+        while let Some(s) = self.grid.receive()? {
+            let h = *s.user_header();
+            if self.shard.owns(h.frame_id) && h.is_ok() {
+                self.grids.insert(h.frame_id, (h, s.payload().to_vec()));
+                while self.grids.len() > GRID_CACHE {
+                    self.grids.pop_first();
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// The picks of one grasp set on its frame's grid.
     fn select(
         &self,
@@ -50,16 +66,20 @@ impl GraspSelection<'_> {
             .step
             .select(configs, &view)
             .map_err(|e| StepFailure::new(StatusCode::SelectionFailed, e))?;
-        Ok(pick_records(&selection, configs, self.max_picks))
+        let base = self
+            .robot
+            .base_frame(&grid.0.camera().workspace_from_camera);
+        Ok(pick_records(&selection, configs, self.max_picks, &base))
     }
 }
 
-/// The pick records of `selection` (picks of `configs`), best first, at most `max`: what
-/// grasp-selection publishes on `picks`.
+/// The pick records of `selection` (picks of `configs`), best first, at most `max`, with their
+/// poses also in the robot base frame `base`: what grasp-selection publishes on `picks`.
 pub fn pick_records(
     selection: &Selection,
     configs: &[GraspConfiguration],
     max: usize,
+    base: &BaseFrame,
 ) -> Vec<PickRecord> {
     selection
         .picks
@@ -77,6 +97,7 @@ pub fn pick_records(
                 p.configuration_index as u32,
                 p.approach_index as u32,
                 rank as u32,
+                base,
             )
         })
         .collect()
@@ -100,16 +121,7 @@ impl Stage for GraspSelection<'_> {
                 }
             }
         }
-        while let Some(s) = self.grid.receive()? {
-            let h = *s.user_header();
-            if self.shard.owns(h.frame_id) && h.is_ok() {
-                self.grids.insert(h.frame_id, (h, s.payload().to_vec()));
-                while self.grids.len() > GRID_CACHE {
-                    self.grids.pop_first();
-                }
-            }
-        }
-        Ok(())
+        self.take_grids()
     }
 
     fn admit(&mut self, h: &FrameHeader) -> bool {
@@ -131,6 +143,12 @@ impl Stage for GraspSelection<'_> {
     ) -> Result<Result<Sent, StepFailure>> {
         let configs: Vec<GraspConfiguration> =
             payload.iter().map(GraspConfiguration::from).collect();
+        if !self.grids.contains_key(&h.frame_id) {
+            // The grid is published before inference starts on it, so it waits on the side
+            // input by now, but it may have arrived after this batch's `before_frames` (a grasp
+            // set that came in while an earlier one of the batch was being processed).
+            self.take_grids()?;
+        }
         let Some(grid) = self.grids.remove(&h.frame_id) else {
             let why = if h.stamps_ns[Stamp::FusionEnd as usize] < self.started_ns {
                 "its normal grid was published before this grasp-selection worker (re)started"
@@ -166,6 +184,7 @@ pub fn run(args: StageArgs) -> Result<()> {
     let cfg = ctx.config.clone();
     let names = ctx.node.names.clone();
     let step = SelectionStep::new(&cfg.cell)?;
+    let robot = cfg.cell.robot_cell()?;
     let grasps_sub = ctx.node.subscriber::<GraspRecord>(&names.grasps())?;
     let grid_sub = ctx.node.subscriber::<f32>(&names.grid())?;
     let progress_sub = ctx.node.progress_subscriber()?;
@@ -188,6 +207,7 @@ pub fn run(args: StageArgs) -> Result<()> {
     let mut stage = GraspSelection {
         step,
         max_picks,
+        robot,
         shard: ctx.shard(),
         progress: &progress_sub,
         grid: &grid_sub,

@@ -45,19 +45,14 @@ impl PickClient {
         self.service.dynamic_config().number_of_servers()
     }
 
-    /// Requests a pick (`failed_previous` = the last pick failed, advance). Waits up to
-    /// `timeout`, also for a grasp-selection that is restarting: the request is sent (again)
-    /// once a server is there. `None` if no answer came in time.
+    /// Requests a pick in `mode` (what became of the previous one). Waits up to `timeout`,
+    /// also for a grasp-selection that is restarting: the request is sent (again) once a server
+    /// is there. `None` if no answer came in time.
     pub fn next_pick(
         &self,
-        failed_previous: bool,
+        mode: NextPickMode,
         timeout: Duration,
     ) -> Result<Option<NextPickResponse>> {
-        let mode = if failed_previous {
-            NextPickMode::AfterFailure
-        } else {
-            NextPickMode::Current
-        };
         let deadline = Instant::now() + timeout;
         while Instant::now() < deadline {
             if self.servers() == 0 {

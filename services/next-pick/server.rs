@@ -36,6 +36,10 @@ pub struct PickCursor {
     /// Whether the pick at `cursor` has been handed out: only then does a failure report move
     /// past it (a new frame's first pick is never skipped).
     handed_out: bool,
+    /// When a pick was last reported successful (µs, the clock of frame ids): frames up to
+    /// then show the scene before that pick, so none of their picks is handed out.
+    #[serde(default)]
+    picked_at_us: Option<u64>,
 }
 
 impl PickCursor {
@@ -46,6 +50,9 @@ impl PickCursor {
             self.latest = Some((frame_id, picks.to_vec()));
             self.cursor = 0;
             self.handed_out = false;
+            if self.picked_at_us.is_some_and(|t| frame_id > t) {
+                self.picked_at_us = None;
+            }
             return true;
         }
         false
@@ -70,8 +77,12 @@ impl PickCursor {
         }
     }
 
-    /// The answer to a request in `mode` (`None`: an undefined wire value).
-    pub fn answer(&mut self, mode: Option<NextPickMode>) -> NextPickResponse {
+    /// The answer to a request in `mode` (`None`: an undefined wire value) received at
+    /// `now_us` (µs, the clock of frame ids).
+    pub fn answer(&mut self, mode: Option<NextPickMode>, now_us: u64) -> NextPickResponse {
+        if mode == Some(NextPickMode::AfterSuccess) {
+            self.picked_at_us = Some(now_us);
+        }
         let Some((frame_id, picks)) = &self.latest else {
             return NextPickResponse::without_pick(NextPickStatus::NoFrameYet, 0);
         };
@@ -79,6 +90,9 @@ impl PickCursor {
             None => return NextPickResponse::without_pick(NextPickStatus::BadRequest, *frame_id),
             Some(NextPickMode::AfterFailure) if self.handed_out => self.cursor += 1,
             Some(_) => {}
+        }
+        if self.picked_at_us.is_some_and(|t| *frame_id <= t) {
+            return NextPickResponse::without_pick(NextPickStatus::AwaitingNewFrame, *frame_id);
         }
         match picks.get(self.cursor) {
             Some(p) => {
@@ -169,7 +183,8 @@ impl<'p> NextPickServer<'p> {
             .receive()
             .map_err(|e| anyhow::anyhow!("next-pick receive: {e:?}"))?
         {
-            let response = self.picks.answer(active.payload().mode());
+            let now_us = psgrasp_ipc::now_ns() / 1000;
+            let response = self.picks.answer(active.payload().mode(), now_us);
             self.save();
             active
                 .send_copy(response)
@@ -200,28 +215,51 @@ mod tests {
     fn a_failure_report_moves_on_but_never_past_a_pick_not_yet_handed_out() {
         let mut c = PickCursor::default();
         assert_eq!(
-            c.answer(Some(NextPickMode::Current)).status(),
+            c.answer(Some(NextPickMode::Current), 0).status(),
             Some(NextPickStatus::NoFrameYet)
         );
         c.offer(10, &picks(3));
-        assert_eq!(rank(c.answer(Some(NextPickMode::Current))), Some(0));
-        assert_eq!(rank(c.answer(Some(NextPickMode::Current))), Some(0));
-        assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure))), Some(1));
+        assert_eq!(rank(c.answer(Some(NextPickMode::Current), 0)), Some(0));
+        assert_eq!(rank(c.answer(Some(NextPickMode::Current), 0)), Some(0));
+        assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure), 0)), Some(1));
         // A new frame arrives: the failure report of the old pick gives the new frame's best,
         // not its second (issue 19, failure 7).
         c.offer(11, &picks(3));
-        let r = c.answer(Some(NextPickMode::AfterFailure));
+        let r = c.answer(Some(NextPickMode::AfterFailure), 0);
         assert_eq!((r.frame_id, rank(r)), (11, Some(0)));
-        assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure))), Some(1));
-        assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure))), Some(2));
+        assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure), 0)), Some(1));
+        assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure), 0)), Some(2));
         assert_eq!(
-            c.answer(Some(NextPickMode::AfterFailure)).status(),
+            c.answer(Some(NextPickMode::AfterFailure), 0).status(),
             Some(NextPickStatus::Exhausted)
         );
         // An older frame never replaces a newer one; an undefined mode is refused.
         assert!(!c.offer(9, &picks(1)));
-        assert_eq!(c.answer(None).status(), Some(NextPickStatus::BadRequest));
-        assert_eq!(c.answer(None).frame_id, 11);
+        assert_eq!(c.answer(None, 0).status(), Some(NextPickStatus::BadRequest));
+        assert_eq!(c.answer(None, 0).frame_id, 11);
+    }
+
+    #[test]
+    fn a_success_report_hands_out_nothing_until_a_newer_frame_arrives() {
+        let mut c = PickCursor::default();
+        c.offer(100, &picks(3));
+        assert_eq!(rank(c.answer(Some(NextPickMode::Current), 150)), Some(0));
+        // Picked at t = 200: frame 100 shows the scene before the pick.
+        let r = c.answer(Some(NextPickMode::AfterSuccess), 200);
+        assert_eq!(r.status(), Some(NextPickStatus::AwaitingNewFrame));
+        assert_eq!(
+            c.answer(Some(NextPickMode::AfterFailure), 210).status(),
+            Some(NextPickStatus::AwaitingNewFrame)
+        );
+        // A frame taken before the pick that finished later is no better.
+        c.offer(190, &picks(2));
+        assert_eq!(
+            c.answer(Some(NextPickMode::Current), 220).status(),
+            Some(NextPickStatus::AwaitingNewFrame)
+        );
+        c.offer(250, &picks(2));
+        let r = c.answer(Some(NextPickMode::Current), 260);
+        assert_eq!((r.frame_id, rank(r)), (250, Some(0)));
     }
 
     #[test]
@@ -234,12 +272,12 @@ mod tests {
         let mut p = picks(3);
         p[1].position = [0.1, -0.25, 1.0 / 3.0];
         c.offer(42, &p);
-        c.answer(Some(NextPickMode::Current));
-        c.answer(Some(NextPickMode::AfterFailure));
+        c.answer(Some(NextPickMode::Current), 0);
+        c.answer(Some(NextPickMode::AfterFailure), 0);
         c.save(&path).unwrap();
         let mut restored = PickCursor::load(&path).unwrap();
         assert_eq!(restored, c, "bit-exact picks and the same position");
-        let r = restored.answer(Some(NextPickMode::AfterFailure));
+        let r = restored.answer(Some(NextPickMode::AfterFailure), 0);
         assert_eq!((r.frame_id, rank(r)), (42, Some(2)));
         std::fs::write(&path, b"{not json").unwrap();
         assert!(PickCursor::load(&path).is_err());

@@ -44,7 +44,8 @@ pub fn nodes_of(pipeline: &str) -> usize {
             NodeState::Dead(v) => v.details().as_ref().map(|d| d.name().as_str().to_string()),
             _ => None,
         };
-        if name.is_some_and(|s| s.starts_with(pipeline)) {
+        // `<pipeline>-…`: "stress-123" must not count the nodes of "stress-1234".
+        if name.is_some_and(|s| s == pipeline || s.starts_with(&format!("{pipeline}-"))) {
             n += 1;
         }
         CallbackProgression::Continue

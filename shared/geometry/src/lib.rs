@@ -12,6 +12,7 @@ pub mod clearance;
 pub mod depth;
 pub mod grasp;
 pub mod gripper;
+pub mod robot;
 pub mod setting;
 pub mod workspace;
 
@@ -24,6 +25,7 @@ pub use grasp::{
     GraspConfiguration, N_APPROACHES,
 };
 pub use gripper::{GripperModel, OrientedBox};
+pub use robot::{BaseFrame, PoseInBase, PoseSetting, RobotCell, RobotConfig};
 pub use setting::{check_setting, OutOfRange};
 pub use workspace::Workspace;
 
@@ -43,4 +45,7 @@ pub enum GeometryError {
     /// fingers); see [`GripperModel::validate`].
     #[error("invalid gripper model: {0}")]
     InvalidGripper(&'static str),
+    /// The robot cell (`[robot]`: hand-eye calibration, gripper on the flange) is unusable.
+    #[error("invalid robot cell: {0}")]
+    InvalidRobot(String),
 }

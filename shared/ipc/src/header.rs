@@ -4,7 +4,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use psgrasp_geometry::{CameraIntrinsics, CameraModel, Workspace};
 
 /// Version of the message layouts; bump on any layout change.
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 
 /// Length of the fixed, NUL-padded UTF-8 error message in the header.
 pub const ERROR_MESSAGE_LEN: usize = 164;

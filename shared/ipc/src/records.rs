@@ -1,7 +1,7 @@
 //! Payload element types (all `#[repr(C)]`, `f32`/`u32` only, no padding surprises).
 use iceoryx2::prelude::ZeroCopySend;
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
-use psgrasp_geometry::{GraspConfiguration, N_APPROACHES};
+use psgrasp_geometry::{BaseFrame, GraspConfiguration, N_APPROACHES};
 
 /// One grasp configuration `C = (c, b, {σ_i}, w, q, κ)` (112 bytes).
 #[repr(C)]
@@ -51,12 +51,14 @@ impl From<&GraspRecord> for GraspConfiguration {
     }
 }
 
-/// One executable pick: gripper pose (TCP), pre-grasp pose and scores (88 bytes).
+/// One executable pick: gripper pose (TCP), pre-grasp pose and scores in the workspace frame,
+/// and the same poses in the robot base frame with the flange pose that puts the TCP there and
+/// the camera pose that produced it (200 bytes; protocol v2).
 #[repr(C)]
 #[derive(
     Debug, Clone, Copy, Default, PartialEq, ZeroCopySend, serde::Serialize, serde::Deserialize,
 )]
-#[type_name("psgrasp::PickRecord/v1")]
+#[type_name("psgrasp::PickRecord/v2")]
 pub struct PickRecord {
     /// TCP position in the workspace frame, metres.
     pub position: [f32; 3],
@@ -78,12 +80,49 @@ pub struct PickRecord {
     pub rank: u32,
     /// Contact point, workspace frame.
     pub contact: [f32; 3],
+    /// 1 if the robot base frame comes from a configured hand-eye calibration (`[robot]
+    /// camera_in_base`); 0 if none is configured and the base frame is the workspace frame.
+    pub base_calibrated: u32,
+    /// TCP position in the robot base frame, metres.
+    pub base_position: [f32; 3],
+    /// TCP orientation in the robot base frame, quaternion xyzw.
+    pub base_orientation_xyzw: [f32; 4],
+    /// Pre-grasp TCP position in the robot base frame (same orientation).
+    pub base_pregrasp_position: [f32; 3],
+    /// Flange position in the robot base frame that puts the TCP at the pick.
+    pub flange_position: [f32; 3],
+    /// Flange orientation in the robot base frame, quaternion xyzw.
+    pub flange_orientation_xyzw: [f32; 4],
+    /// Flange position of the pre-grasp pose (same orientation).
+    pub flange_pregrasp_position: [f32; 3],
+    /// The camera's position in the robot base frame when the frame was taken.
+    pub camera_position: [f32; 3],
+    /// The camera's orientation in the robot base frame, quaternion xyzw.
+    pub camera_orientation_xyzw: [f32; 4],
     /// Reserved, zero.
-    pub reserved: [u32; 3],
+    pub reserved: [u32; 2],
+}
+
+fn xyzw(q: &UnitQuaternion<f64>) -> [f32; 4] {
+    let c = q.coords;
+    [c[0] as f32, c[1] as f32, c[2] as f32, c[3] as f32]
+}
+
+fn position(p: &Isometry3<f64>) -> [f32; 3] {
+    p.translation.vector.cast::<f32>().into()
+}
+
+fn isometry(position: [f32; 3], xyzw: [f32; 4]) -> Isometry3<f32> {
+    let [x, y, z, w] = xyzw;
+    Isometry3::from_parts(
+        Translation3::from(Vector3::from(position)),
+        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
+    )
 }
 
 impl PickRecord {
-    /// Builds a record from poses.
+    /// Builds a record from poses in the workspace frame and puts them into the robot base frame
+    /// `base` of the frame.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         workspace_from_gripper: &Isometry3<f32>,
@@ -95,8 +134,11 @@ impl PickRecord {
         configuration_index: u32,
         approach_index: u32,
         rank: u32,
+        base: &BaseFrame,
     ) -> Self {
         let q = workspace_from_gripper.rotation.coords;
+        let grasp = base.pose(workspace_from_gripper);
+        let pre = base.pose(pregrasp);
         Self {
             position: workspace_from_gripper.translation.vector.into(),
             orientation_xyzw: [q[0], q[1], q[2], q[3]],
@@ -108,17 +150,37 @@ impl PickRecord {
             approach_index,
             rank,
             contact: contact.coords.into(),
-            reserved: [0; 3],
+            base_calibrated: base.calibrated as u32,
+            base_position: position(&grasp.tcp),
+            base_orientation_xyzw: xyzw(&grasp.tcp.rotation),
+            base_pregrasp_position: position(&pre.tcp),
+            flange_position: position(&grasp.flange),
+            flange_orientation_xyzw: xyzw(&grasp.flange.rotation),
+            flange_pregrasp_position: position(&pre.flange),
+            camera_position: position(&base.camera_in_base),
+            camera_orientation_xyzw: xyzw(&base.camera_in_base.rotation),
+            reserved: [0; 2],
         }
     }
 
     /// The TCP pose in the workspace frame.
     pub fn workspace_from_gripper(&self) -> Isometry3<f32> {
-        let [x, y, z, w] = self.orientation_xyzw;
-        Isometry3::from_parts(
-            Translation3::from(Vector3::from(self.position)),
-            UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
-        )
+        isometry(self.position, self.orientation_xyzw)
+    }
+
+    /// The TCP pose in the robot base frame.
+    pub fn base_from_gripper(&self) -> Isometry3<f32> {
+        isometry(self.base_position, self.base_orientation_xyzw)
+    }
+
+    /// The flange pose in the robot base frame.
+    pub fn base_from_flange(&self) -> Isometry3<f32> {
+        isometry(self.flange_position, self.flange_orientation_xyzw)
+    }
+
+    /// The camera pose in the robot base frame.
+    pub fn base_from_camera(&self) -> Isometry3<f32> {
+        isometry(self.camera_position, self.camera_orientation_xyzw)
     }
 
     /// The approach direction (gripper z axis) in the workspace frame.
@@ -162,7 +224,8 @@ pub struct StageStats {
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[type_name("psgrasp::NextPickRequest/v1")]
 pub struct NextPickRequest {
-    /// A [`NextPickMode`] as `u32` (0 current, 1 previous failed → next); read it with
+    /// A [`NextPickMode`] as `u32` (0 current, 1 previous failed → next, 2 previous succeeded →
+    /// a newer frame's best); read it with
     /// [`NextPickRequest::mode`].
     pub mode: u32,
     /// Reserved, zero.
@@ -178,6 +241,9 @@ pub enum NextPickMode {
     Current = 0,
     /// The previous pick failed: move on to the next one.
     AfterFailure = 1,
+    /// The previous pick succeeded: the scene has changed, so no pick of a frame taken before
+    /// now is handed out any more; the answer waits for a newer frame.
+    AfterSuccess = 2,
 }
 
 impl NextPickMode {
@@ -186,6 +252,7 @@ impl NextPickMode {
         match v {
             0 => Some(Self::Current),
             1 => Some(Self::AfterFailure),
+            2 => Some(Self::AfterSuccess),
             _ => None,
         }
     }
@@ -218,6 +285,8 @@ pub enum NextPickStatus {
     Exhausted = 2,
     /// The request's mode is not one this server knows.
     BadRequest = 3,
+    /// A pick was reported successful; no frame taken after that has been processed yet.
+    AwaitingNewFrame = 4,
 }
 
 impl NextPickStatus {
@@ -228,6 +297,7 @@ impl NextPickStatus {
             1 => Some(Self::NoFrameYet),
             2 => Some(Self::Exhausted),
             3 => Some(Self::BadRequest),
+            4 => Some(Self::AwaitingNewFrame),
             _ => None,
         }
     }
@@ -236,7 +306,7 @@ impl NextPickStatus {
 /// The answer to a [`NextPickRequest`].
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("psgrasp::NextPickResponse/v1")]
+#[type_name("psgrasp::NextPickResponse/v2")]
 pub struct NextPickResponse {
     /// A [`NextPickStatus`] as `u32` (0 pick, 1 no frame yet, 2 exhausted, 3 bad request); read
     /// it with [`NextPickResponse::status`].
@@ -278,19 +348,24 @@ impl NextPickResponse {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use psgrasp_geometry::RobotConfig;
     use std::mem::size_of;
 
     #[test]
     fn record_sizes() {
         assert_eq!(size_of::<GraspRecord>(), 112);
-        assert_eq!(size_of::<PickRecord>(), 88);
+        assert_eq!(size_of::<PickRecord>(), 200);
         assert_eq!(size_of::<StageStats>(), 72);
-        assert_eq!(size_of::<NextPickResponse>(), 104);
+        assert_eq!(size_of::<NextPickResponse>(), 216);
     }
 
     #[test]
     fn next_pick_wire_values_round_trip_and_unknown_ones_are_refused() {
-        for mode in [NextPickMode::Current, NextPickMode::AfterFailure] {
+        for mode in [
+            NextPickMode::Current,
+            NextPickMode::AfterFailure,
+            NextPickMode::AfterSuccess,
+        ] {
             assert_eq!(NextPickRequest::new(mode).mode(), Some(mode));
         }
         assert_eq!(NextPickRequest::new(NextPickMode::AfterFailure).mode, 1);
@@ -304,6 +379,7 @@ mod tests {
             NextPickStatus::NoFrameYet,
             NextPickStatus::Exhausted,
             NextPickStatus::BadRequest,
+            NextPickStatus::AwaitingNewFrame,
         ] {
             assert_eq!(NextPickStatus::from_u32(status as u32), Some(status));
         }
@@ -311,7 +387,7 @@ mod tests {
             NextPickResponse::without_pick(NextPickStatus::Exhausted, 9).status,
             2
         );
-        assert_eq!(NextPickStatus::from_u32(4), None);
+        assert_eq!(NextPickStatus::from_u32(5), None);
     }
 
     #[test]
@@ -344,9 +420,20 @@ mod tests {
             4,
             9,
             0,
+            &RobotConfig::default()
+                .resolve(0.01)
+                .unwrap()
+                .base_frame(&Isometry3::identity()),
         );
         let back = r.workspace_from_gripper();
         assert!((back.to_homogeneous() - pose.to_homogeneous()).norm() < 1e-5);
         assert!((r.approach() - pose.rotation * Vector3::z()).norm() < 1e-6);
+        // Uncalibrated: base frame = workspace frame; the camera pose is the workspace one.
+        assert_eq!(r.base_calibrated, 0);
+        let base = r.base_from_gripper();
+        assert!((base.to_homogeneous() - pose.to_homogeneous()).norm() < 1e-5);
+        let flange = r.base_from_flange();
+        let tcp_from_flange = flange.inverse() * base;
+        assert!((tcp_from_flange.translation.vector.norm() - (0.1034 - 0.01)).abs() < 1e-5);
     }
 }

@@ -1,6 +1,6 @@
 //! The cell's configuration: what every perception step needs to know.
 use psgrasp_fusion::{DepthScaleConfig, FusionConfig};
-use psgrasp_geometry::{BinModel, GripperModel, Workspace};
+use psgrasp_geometry::{BinModel, GripperModel, RobotCell, RobotConfig, Workspace};
 use psgrasp_inference::{BackendConfig, InferenceBackend, InferenceError};
 use psgrasp_selection::SelectionConfig;
 use serde::{Deserialize, Serialize};
@@ -27,6 +27,9 @@ pub struct CellConfig {
     pub selection: SelectionConfig,
     /// How the steps are joined.
     pub perception: ChainConfig,
+    /// The robot around the cell: hand-eye calibration and the gripper on the flange, for
+    /// picks in the robot base frame.
+    pub robot: RobotConfig,
 }
 
 /// Settings of the chain itself (between the steps).
@@ -117,7 +120,18 @@ impl CellConfig {
         if p.max_grasps_per_frame == 0 {
             return Err(invalid("perception.max_grasps_per_frame", "must be ≥ 1"));
         }
+        self.robot_cell()?;
         Ok(())
+    }
+
+    /// The robot cell with this cell's gripper (its TCP in the flange frame).
+    pub fn robot_cell(&self) -> Result<RobotCell, InvalidSetting> {
+        self.robot
+            .resolve(self.gripper.tip_beyond_tcp_m)
+            .map_err(|e| match e {
+                psgrasp_geometry::GeometryError::InvalidRobot(m) => invalid("robot", m),
+                other => invalid("robot", other),
+            })
     }
 
     /// `backend` as this cell runs it: an analytic backend without its own contact region gets
