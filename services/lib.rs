@@ -8,16 +8,21 @@
 
 #[path = "camera-ingest/stage.rs"]
 pub mod camera_ingest;
+pub mod controller;
+pub mod detect;
 #[path = "grasp-selection/stage.rs"]
 pub mod grasp_selection;
 #[path = "grid-fusion/stage.rs"]
 pub mod grid_fusion;
+pub mod http;
 #[path = "inference/stage.rs"]
 pub mod inference;
 pub mod launcher;
+pub mod metrics;
 pub mod monitor;
 #[path = "next-pick/mod.rs"]
 pub mod next_pick;
+pub mod pick_json;
 pub mod run;
 #[path = "camera-ingest/sources.rs"]
 pub mod sources;

@@ -1,10 +1,10 @@
 //! `psgrasp`: the one entry point for people — run the pipeline, the demo, the stress test.
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use psgrasp::launcher::{default_bin_dir, Supervisor};
 use psgrasp::{run, stress};
 use psgrasp_config::PipelineConfig;
-use psgrasp_ipc::{NextPickStatus, PipelineNode, StatusCode};
+use psgrasp_ipc::{NextPickMode, NextPickStatus, PipelineNode, StatusCode};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -41,6 +41,37 @@ enum Command {
         /// Grasps to print per frame.
         #[arg(long, default_value_t = 5)]
         top: usize,
+        /// Also write each frame's depth image with its picks drawn (one frame: this file; more:
+        /// `<stem>-<k>.png`).
+        #[arg(long, value_name = "PNG")]
+        png: Option<PathBuf>,
+    },
+    /// Detect grasps on one depth file in this process (the pipeline's perception chain), print
+    /// the picks, and write them as JSON and as a picture.
+    Detect {
+        /// 16-bit PNG (counts × depth unit) or `.npy` depth file.
+        depth: PathBuf,
+        /// Intrinsics JSON/TOML (`width, height, fx, fy, cx, cy[, depth_unit_m]`); default: the
+        /// configuration's `camera.intrinsics`.
+        #[arg(long)]
+        intrinsics: Option<PathBuf>,
+        /// The camera's pose in the workspace frame as `tx,ty,tz,qx,qy,qz,qw` (metres, unit
+        /// quaternion); default: the configuration's `camera.pose`, else the workspace is put on
+        /// the dominant plane of the image.
+        #[arg(long, value_parser = parse_pose, allow_hyphen_values = true)]
+        pose: Option<psgrasp_config::PoseConfig>,
+        /// Metres per count of a 16-bit depth file (default: the intrinsics file's, else 0.001).
+        #[arg(long)]
+        depth_unit: Option<f32>,
+        /// Pipeline configuration (the cell, backend, selection and `[robot]`).
+        #[arg(long, default_value = "config/default.toml")]
+        config: PathBuf,
+        /// Write the picks as JSON here.
+        #[arg(long, value_name = "FILE")]
+        json: Option<PathBuf>,
+        /// Write the depth image with the picks drawn here (PNG).
+        #[arg(long, value_name = "FILE")]
+        png: Option<PathBuf>,
     },
     /// Push frames through the live pipeline; print throughput, latency percentiles, drops and
     /// errors, and compare the shared-memory transport with a Unix socket.
@@ -79,14 +110,31 @@ enum Command {
         #[arg(default_value = "config/default.toml")]
         config: PathBuf,
     },
+    /// Serve the HTTP/JSON endpoint (`[http]`, also when `enabled = false`) for a pipeline
+    /// that runs already (`psgrasp up` serves it itself when `[http] enabled = true`).
+    Http {
+        /// Pipeline configuration (its name, channel settings and `[http]`).
+        #[arg(long, default_value = "config/default.toml")]
+        config: PathBuf,
+        /// Port (overrides `[http] port`; 0: one the system picks).
+        #[arg(long)]
+        port: Option<u16>,
+    },
     /// Ask a running pipeline for the next pick (as a cell controller would).
     NextPick {
         /// Pipeline configuration.
         #[arg(long, default_value = "config/default.toml")]
         config: PathBuf,
         /// The previous pick failed: hand out the next one.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "picked")]
         failed: bool,
+        /// The previous pick succeeded: the scene changed, so wait for a newer frame's best
+        /// pick.
+        #[arg(long)]
+        picked: bool,
+        /// How long to wait for an answer (also for a restarting grasp-selection), seconds.
+        #[arg(long, default_value_t = 5.0)]
+        wait: f64,
     },
     /// Generate synthetic bin scenes with dense grasp labels (a training or test dataset).
     Datagen(psgrasp_datagen::DatagenArgs),
@@ -145,7 +193,25 @@ fn run(cli: Cli) -> Result<()> {
             frames,
             seed,
             top,
-        } => demo(config, frames, seed, top),
+            png,
+        } => demo(config, frames, seed, top, png),
+        Command::Detect {
+            depth,
+            intrinsics,
+            pose,
+            depth_unit,
+            config,
+            json,
+            png,
+        } => {
+            let input = psgrasp::detect::DetectInput {
+                depth,
+                intrinsics,
+                pose,
+                depth_unit_m: depth_unit,
+            };
+            detect(&config, &input, json, png)
+        }
         Command::Stress {
             config,
             frames,
@@ -204,6 +270,25 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Command::Http { config, port } => {
+            let mut cfg = PipelineConfig::load(&config)?;
+            if let Some(port) = port {
+                cfg.http.port = port;
+            }
+            let node = PipelineNode::new(
+                &format!("{}-http-{}", cfg.pipeline.name, std::process::id()),
+                &cfg.pipeline.name,
+                cfg.pipeline.channel,
+            )?;
+            let endpoint = psgrasp::http::HttpEndpoint::start(&cfg)?;
+            println!(
+                "HTTP endpoint for pipeline '{}' on http://{}; Ctrl-C to stop",
+                cfg.pipeline.name,
+                endpoint.addr()
+            );
+            while node.sleep(Duration::from_millis(200)) {}
+            Ok(())
+        }
         Command::Datagen(args) => psgrasp_datagen::run_datagen(&args),
         Command::Inspect(args) => psgrasp_datagen::run_inspect(&args),
         Command::Eval(args) => psgrasp_eval::run_eval(&args),
@@ -217,7 +302,21 @@ fn run(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
-        Command::NextPick { config, failed } => {
+        Command::NextPick {
+            config,
+            failed,
+            picked,
+            wait,
+        } => {
+            let mode = match (failed, picked) {
+                (true, _) => NextPickMode::AfterFailure,
+                (_, true) => NextPickMode::AfterSuccess,
+                _ => NextPickMode::Current,
+            };
+            anyhow::ensure!(
+                wait.is_finite() && (0.0..=3600.0).contains(&wait),
+                "--wait {wait}: must be 0 to 3600 s"
+            );
             let cfg = PipelineConfig::load(&config)?;
             let node = PipelineNode::new(
                 &format!("{}-cli-{}", cfg.pipeline.name, std::process::id()),
@@ -225,19 +324,23 @@ fn run(cli: Cli) -> Result<()> {
                 cfg.pipeline.channel,
             )?;
             let client = psgrasp::next_pick::PickClient::connect(&node)?;
-            // Long enough to wait out a grasp-selection restart.
-            match client.next_pick(failed, Duration::from_secs(5))? {
+            // The default is long enough to wait out a grasp-selection restart.
+            match client.next_pick(mode, Duration::from_secs_f64(wait))? {
                 None => anyhow::bail!(
-                    "no answer from grasp-selection within 5 s: is `psgrasp up` running?"
+                    "no answer from grasp-selection within {wait} s: is `psgrasp up` running?"
                 ),
                 Some(r) => match r.status() {
                     Some(NextPickStatus::Pick) => println!(
                         "{}",
-                        serde_json::to_string_pretty(&pick_json(r.frame_id, &r.pick))?
+                        serde_json::to_string_pretty(&psgrasp::pick_json::pick_json(r.frame_id, &r.pick))?
                     ),
                     Some(NextPickStatus::NoFrameYet) => println!("no frame processed yet"),
                     Some(NextPickStatus::Exhausted) => println!(
                         "all picks of frame {} used; wait for the next frame",
+                        r.frame_id
+                    ),
+                    Some(NextPickStatus::AwaitingNewFrame) => println!(
+                        "the last pick succeeded; no frame taken since has been processed yet (latest: {})",
                         r.frame_id
                     ),
                     Some(NextPickStatus::BadRequest) => {
@@ -253,19 +356,6 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
-fn pick_json(frame_id: u64, p: &psgrasp_ipc::PickRecord) -> serde_json::Value {
-    serde_json::json!({
-        "frame_id": frame_id,
-        "rank": p.rank,
-        "position_m": p.position,
-        "orientation_xyzw": p.orientation_xyzw,
-        "pregrasp_position_m": p.pregrasp_position,
-        "width_m": p.width,
-        "quality": p.quality,
-        "collision_score": p.collision_score,
-    })
-}
-
 fn up(config: PathBuf) -> Result<()> {
     let cfg = PipelineConfig::load(&config)?;
     let node = PipelineNode::new(
@@ -279,6 +369,13 @@ fn up(config: PathBuf) -> Result<()> {
         cfg.pipeline.name,
         sup.processes.len()
     );
+    let http = if cfg.http.enabled {
+        let endpoint = psgrasp::http::HttpEndpoint::start(&cfg)?;
+        println!("HTTP endpoint on http://{}", endpoint.addr());
+        Some(endpoint)
+    } else {
+        None
+    };
     while node.sleep(Duration::from_millis(100)) {
         for e in sup.poll()? {
             println!("{e}");
@@ -288,6 +385,7 @@ fn up(config: PathBuf) -> Result<()> {
         }
     }
     println!("stopping…");
+    drop(http);
     sup.shutdown(Duration::from_secs(3));
     let failures = sup.failures();
     // A pipeline with a stage that cannot stay up answers nothing: say so and fail.
@@ -300,7 +398,105 @@ fn up(config: PathBuf) -> Result<()> {
     Ok(())
 }
 
-fn demo(config: PathBuf, frames: u64, seed: u64, top: usize) -> Result<()> {
+/// Parses `tx,ty,tz,qx,qy,qz,qw`.
+fn parse_pose(text: &str) -> Result<psgrasp_config::PoseConfig, String> {
+    let v: Vec<f32> = text
+        .split(',')
+        .map(|x| x.trim().parse::<f32>().map_err(|e| format!("{x:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    if v.len() != 7 || v.iter().any(|x| !x.is_finite()) {
+        return Err(format!(
+            "expected 7 finite numbers tx,ty,tz,qx,qy,qz,qw, got {}",
+            v.len()
+        ));
+    }
+    let norm = v[3..].iter().map(|x| x * x).sum::<f32>().sqrt();
+    if (norm - 1.0).abs() > 1e-3 {
+        return Err(format!("the quaternion must have norm 1, not {norm}"));
+    }
+    Ok(psgrasp_config::PoseConfig {
+        translation: [v[0], v[1], v[2]],
+        rotation_xyzw: [v[3], v[4], v[5], v[6]],
+    })
+}
+
+fn detect(
+    config: &std::path::Path,
+    input: &psgrasp::detect::DetectInput,
+    json: Option<PathBuf>,
+    png: Option<PathBuf>,
+) -> Result<()> {
+    let cfg = PipelineConfig::load(config)?;
+    let out = psgrasp::detect::detect_file(&cfg, input)?;
+    let t = &out.timings;
+    println!(
+        "{}: {} grasp configurations, {} picks; fusion {:.1} ms, inference {:.1} ms, selection {:.1} ms",
+        input.depth.display(),
+        out.configurations,
+        out.picks.len(),
+        t.fusion_ms,
+        t.inference_ms,
+        t.selection_ms
+    );
+    print_picks(&out.picks, out.picks.len());
+    println!(
+        "passed over: {}",
+        serde_json::to_string(&out.rejected).unwrap_or_default()
+    );
+    if let Some(path) = json {
+        let mut doc = psgrasp::pick_json::picks_json(0, &out.picks);
+        doc["passed_over"] = serde_json::json!(out.rejected);
+        doc["depth_file"] = serde_json::json!(input.depth);
+        doc["camera"] = serde_json::json!({
+            "intrinsics": out.camera.intrinsics,
+            "workspace_from_camera": psgrasp_geometry::robot::matrix_rows(
+                &out.camera.workspace_from_camera.cast::<f64>()
+            ),
+        });
+        std::fs::write(&path, serde_json::to_string_pretty(&doc)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("picks → {}", path.display());
+    }
+    if let Some(path) = png {
+        psgrasp::detect::draw_picks(
+            &out.depth,
+            &out.camera,
+            &cfg.cell.workspace,
+            &cfg.cell.gripper,
+            &out.picks,
+        )
+        .write_png(&path)?;
+        println!("picture → {}", path.display());
+    }
+    Ok(())
+}
+
+/// The picks as a Markdown table (workspace and robot base frame).
+fn print_picks(picks: &[psgrasp_ipc::PickRecord], top: usize) {
+    println!("| rank | TCP (m, workspace) | TCP (m, robot base) | approach | width (mm) | quality | collision score |");
+    println!("|---|---|---|---|---|---|---|");
+    for p in picks.iter().take(top) {
+        let a = p.approach();
+        println!(
+            "| {} | ({:.3}, {:.3}, {:.3}) | ({:.3}, {:.3}, {:.3}) | ({:+.2}, {:+.2}, {:+.2}) | {:.1} | {:.2} | {:.2} |",
+            p.rank,
+            p.position[0],
+            p.position[1],
+            p.position[2],
+            p.base_position[0],
+            p.base_position[1],
+            p.base_position[2],
+            a.x,
+            a.y,
+            a.z,
+            p.width * 1000.0,
+            p.quality,
+            p.collision_score
+        );
+    }
+}
+
+fn demo(config: PathBuf, frames: u64, seed: u64, top: usize, png: Option<PathBuf>) -> Result<()> {
     // The error names the file already.
     let mut cfg = PipelineConfig::load(&config)?;
     cfg.pipeline.name = format!("demo-{}", std::process::id());
@@ -341,23 +537,24 @@ fn demo(config: PathBuf, frames: u64, seed: u64, top: usize) -> Result<()> {
             h.span_ms(psgrasp_ipc::Stamp::SelectionStart, psgrasp_ipc::Stamp::SelectionEnd),
             h.span_ms(psgrasp_ipc::Stamp::IngestPublished, psgrasp_ipc::Stamp::SelectionEnd),
         );
-        println!("| rank | TCP position (m, workspace) | approach | width (mm) | quality | collision score |");
-        println!("|---|---|---|---|---|---|");
-        for p in o.picks.iter().take(top) {
-            let a = p.approach();
-            println!(
-                "| {} | ({:.3}, {:.3}, {:.3}) | ({:+.2}, {:+.2}, {:+.2}) | {:.1} | {:.2} | {:.2} |",
-                p.rank,
-                p.position[0],
-                p.position[1],
-                p.position[2],
-                a.x,
-                a.y,
-                a.z,
-                p.width * 1000.0,
-                p.quality,
-                p.collision_score
-            );
+        print_picks(&o.picks, top);
+    }
+    if let Some(path) = png {
+        // The demo's frames are the synthetic source's frames 0, 1, … in order.
+        let mut source = psgrasp::sources::SyntheticSource::new(&cfg);
+        let camera = cfg.camera_model();
+        for (k, o) in report.outcomes.values().enumerate() {
+            let depth = source.render(k as u64)?;
+            let file = psgrasp::detect::numbered_path(&path, k, report.outcomes.len());
+            psgrasp::detect::draw_picks(
+                &depth,
+                &camera,
+                &cfg.cell.workspace,
+                &cfg.cell.gripper,
+                &o.picks,
+            )
+            .write_png(&file)?;
+            println!("frame {}: picture → {}", o.frame_id(), file.display());
         }
     }
     Ok(())

@@ -56,12 +56,42 @@ pub struct PipelineConfig {
     pub pipeline: PipelineSection,
     /// Depth source.
     pub camera: CameraSection,
+    /// The HTTP/JSON endpoint for cell controllers (off by default).
+    pub http: HttpSection,
     /// The cell: what every perception step needs (its tables at the top level).
     #[serde(flatten)]
     pub cell: CellConfig,
     /// Refuses top-level keys that no table takes.
     #[serde(flatten, skip_serializing)]
     pub unknown_keys: NoUnknownKeys,
+}
+
+/// `[http]`: the HTTP/JSON endpoint `psgrasp up` serves for cell controllers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HttpSection {
+    /// Serve it (off by default: nothing listens unless asked).
+    pub enabled: bool,
+    /// Address to listen on; the default serves this machine only.
+    pub bind: String,
+    /// TCP port (0: one the system picks, printed at start).
+    pub port: u16,
+    /// How long a pick request waits for a pick when it does not say (`wait_ms`).
+    pub default_wait_ms: u64,
+    /// Longest wait a pick request may ask for.
+    pub max_wait_ms: u64,
+}
+
+impl Default for HttpSection {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            bind: "127.0.0.1".into(),
+            port: 8471,
+            default_wait_ms: 0,
+            max_wait_ms: 60_000,
+        }
+    }
 }
 
 /// Longest duration setting, milliseconds (one day): in nanoseconds it still fits a `u64`.
@@ -396,6 +426,25 @@ impl PipelineConfig {
                     format!("{ms} must be in {min}..={MAX_DURATION_MS} ms"),
                 ));
             }
+        }
+        let h = &self.http;
+        if h.bind.parse::<std::net::IpAddr>().is_err() {
+            return Err(bad(
+                "http.bind",
+                format!(
+                    "{:?} is not an IP address (e.g. 127.0.0.1, 0.0.0.0, ::1)",
+                    h.bind
+                ),
+            ));
+        }
+        if !(1..=MAX_DURATION_MS).contains(&h.max_wait_ms) || h.default_wait_ms > h.max_wait_ms {
+            return Err(bad(
+                "http.default_wait_ms",
+                format!(
+                    "need 0 ≤ default_wait_ms ({}) ≤ max_wait_ms ({}) ≤ {MAX_DURATION_MS}, max_wait_ms ≥ 1",
+                    h.default_wait_ms, h.max_wait_ms
+                ),
+            ));
         }
         if !(1..=MAX_DURATION_MS / 1000).contains(&p.restart_window_s) {
             return Err(bad(
