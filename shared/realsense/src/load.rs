@@ -58,11 +58,11 @@ impl Library {
             .map(Path::to_path_buf)
             .or_else(|| std::env::var_os(LIBRARY_ENV).map(PathBuf::from))
             .filter(|p| !p.as_os_str().is_empty());
+        let mut tried = Vec::new();
         let candidates = match explicit {
             Some(p) => vec![p],
-            None => search_candidates(),
+            None => search_candidates(&mut tried),
         };
-        let mut tried = Vec::new();
         for path in candidates {
             // A bare name is looked up by the dynamic loader (LD_LIBRARY_PATH, ld.so.cache).
             if path.components().count() > 1 && !path.is_file() {
@@ -136,25 +136,36 @@ impl Library {
     }
 }
 
-/// System libraries first, then the venvs' `pyrealsense2` modules.
-fn search_candidates() -> Vec<PathBuf> {
+/// System libraries first (newest version first), then the venvs' `pyrealsense2` modules;
+/// places searched without a match are added to `tried`.
+fn search_candidates(tried: &mut Vec<String>) -> Vec<PathBuf> {
     let mut out: Vec<PathBuf> = Vec::new();
     for dir in SYSTEM_DIRS {
         let mut found = list(Path::new(dir), |n| n.starts_with("librealsense2.so.2."));
+        if found.is_empty() {
+            tried.push(format!("{dir}/librealsense2.so.2.*"));
+        }
         found.sort();
         out.extend(found.into_iter().rev());
     }
     out.push(PathBuf::from("librealsense2.so"));
     for venv in venvs() {
-        let lib = venv.join("lib");
-        for py in list(&lib, |n| n.starts_with("python3")) {
-            let module = py.join("site-packages/pyrealsense2");
-            let mut found = list(&module, |n| {
-                n.starts_with("pyrealsense2.cpython-") && n.ends_with(".so")
-            });
-            found.sort();
-            out.extend(found);
+        let mut found: Vec<PathBuf> = list(&venv.join("lib"), |n| n.starts_with("python3"))
+            .into_iter()
+            .flat_map(|py| {
+                list(&py.join("site-packages/pyrealsense2"), |n| {
+                    n.starts_with("pyrealsense2.cpython-") && n.ends_with(".so")
+                })
+            })
+            .collect();
+        if found.is_empty() {
+            tried.push(format!(
+                "{}/lib/python3*/site-packages/pyrealsense2/pyrealsense2.cpython-*.so",
+                venv.display()
+            ));
         }
+        found.sort();
+        out.extend(found);
     }
     out.dedup();
     out
