@@ -8,9 +8,27 @@ VENV="$(scripts/setup-python.sh | tail -n 1)"
 export PSGRASP_PYTHON="$VENV/bin/python"
 ORT_LIB="$("$PSGRASP_PYTHON" -c 'import onnxruntime, os, glob; d = os.path.join(os.path.dirname(onnxruntime.__file__), "capi"); print(sorted(glob.glob(os.path.join(d, "libonnxruntime.so*")))[0])')"
 export ORT_DYLIB_PATH="$ORT_LIB"
+# The RealSense tests run through the real librealsense2: the venv's pyrealsense2 wheel, whose
+# extension module exports its C API and needs libusb (installed here when missing, as root).
+if [ "${PSGRASP_SKIP_REALSENSE:-}" != 1 ]; then
+    LD_CACHE="$(ldconfig -p 2>/dev/null || /sbin/ldconfig -p 2>/dev/null || true)"
+    if ! grep -q 'libusb-1\.0\.so\.0' <<< "$LD_CACHE"; then
+        if [ "$(id -u)" = 0 ] && command -v apt-get > /dev/null; then
+            echo "== apt-get install libusb-1.0-0 (librealsense2 needs it)"
+            apt-get install -y -qq libusb-1.0-0 > /dev/null 2>&1 \
+                || { apt-get update -qq && apt-get install -y -qq libusb-1.0-0 > /dev/null; }
+        else
+            echo "librealsense2 (the RealSense tests) needs libusb: run 'sudo apt-get install -y libusb-1.0-0'" \
+                 "(or set PSGRASP_SKIP_REALSENSE=1 to skip those tests)" >&2
+            exit 1
+        fi
+    fi
+    PSGRASP_REALSENSE_LIB="${PSGRASP_REALSENSE_LIB:-$("$PSGRASP_PYTHON" -c 'import glob, os, importlib.util; d = os.path.dirname(importlib.util.find_spec("pyrealsense2").origin); print(sorted(glob.glob(os.path.join(d, "pyrealsense2.cpython-*.so")))[0])')}"
+    export PSGRASP_REALSENSE_LIB
+fi
 # One build for everything: the workspace with the ONNX Runtime backend compiled in (a second
 # feature set would rebuild much of the dependency tree).
-echo "== cargo test --workspace --features ort (ONNX Runtime: $ORT_DYLIB_PATH)"
+echo "== cargo test --workspace --features ort (ONNX Runtime: $ORT_DYLIB_PATH; librealsense2: ${PSGRASP_REALSENSE_LIB:-skipped})"
 cargo test --workspace --features ort
 echo "== pytest training/tests"
 (cd training && OMP_NUM_THREADS=1 "$PSGRASP_PYTHON" -m pytest -q tests)

@@ -1,5 +1,5 @@
-//! Depth sources for camera-ingest: the built-in synthetic bin, file replay, and the
-//! [`DepthSource`] trait a real camera driver implements.
+//! Depth sources for camera-ingest: the built-in synthetic bin, file replay, an Intel RealSense
+//! camera ([`RealSenseSource`]), and the [`DepthSource`] trait a camera driver implements.
 //!
 //! # Adding a real camera
 //! Implement [`DepthSource`] for your driver (return frames in metres with the intrinsics and
@@ -11,6 +11,10 @@ use psgrasp_geometry::{CameraIntrinsics, CameraModel, DepthImage, FrameSize, MAX
 use psgrasp_ipc::now_ns;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
+
+#[path = "realsense.rs"]
+mod realsense;
+pub use realsense::RealSenseSource;
 
 /// One frame from a source.
 #[derive(Debug, Clone)]
@@ -37,6 +41,7 @@ pub fn source_from_config(cfg: &PipelineConfig) -> Result<Box<dyn DepthSource>> 
     match cfg.camera.source {
         SourceKind::Synthetic => Ok(Box::new(SyntheticSource::new(cfg))),
         SourceKind::Replay => Ok(Box::new(ReplaySource::new(cfg)?)),
+        SourceKind::Realsense => Ok(Box::new(RealSenseSource::new(cfg)?)),
     }
 }
 

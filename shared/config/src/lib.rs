@@ -184,7 +184,8 @@ impl Default for WorkerCounts {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CameraSection {
-    /// `synthetic` (built-in procedural bin scene) or `replay` (files).
+    /// `synthetic` (built-in procedural bin scene), `replay` (files) or `realsense` (an Intel
+    /// RealSense camera).
     pub source: SourceKind,
     /// Frames per second; 0 = as fast as the pipeline accepts.
     pub rate_hz: f64,
@@ -192,11 +193,12 @@ pub struct CameraSection {
     pub frames: u64,
     /// Camera id written into every header.
     pub source_id: u32,
-    /// Intrinsics (synthetic source; replay reads its own intrinsics file unless absent).
+    /// Intrinsics (synthetic source; replay reads its own intrinsics file unless absent, and
+    /// the realsense source the device's).
     #[serde(deserialize_with = "psgrasp_geometry::camera::deserialize_intrinsics_strict")]
     pub intrinsics: CameraIntrinsics,
     /// Camera pose in the workspace frame; `None` = top-down above the bin at `height_above_rim_m`
-    /// (synthetic) or fitted to the dominant plane (replay).
+    /// (synthetic) or fitted to the dominant plane (replay, realsense).
     pub pose: Option<PoseConfig>,
     /// Camera height above the bin rim for the default top-down pose.
     pub height_above_rim_m: f32,
@@ -208,6 +210,8 @@ pub struct CameraSection {
     pub synthetic: SyntheticSource,
     /// Replay source settings.
     pub replay: ReplaySource,
+    /// RealSense source settings.
+    pub realsense: RealSenseSource,
 }
 
 impl Default for CameraSection {
@@ -223,6 +227,7 @@ impl Default for CameraSection {
             wait_for_subscribers_ms: 10_000,
             synthetic: SyntheticSource::default(),
             replay: ReplaySource::default(),
+            realsense: RealSenseSource::default(),
         }
     }
 }
@@ -235,6 +240,8 @@ pub enum SourceKind {
     Synthetic,
     /// 16-bit PNG or `.npy` depth files.
     Replay,
+    /// An Intel RealSense depth camera through librealsense2, loaded at run time.
+    Realsense,
 }
 
 /// Settings of the synthetic source.
@@ -274,6 +281,47 @@ pub struct ReplaySource {
     pub depth_unit_m: Option<f32>,
     /// Start again at the first file after the last.
     pub looping: bool,
+}
+
+/// Largest RealSense depth image side, pixels.
+pub const REALSENSE_MAX_SIDE: u32 = 4096;
+/// Fastest RealSense depth stream, frames per second.
+pub const REALSENSE_MAX_FPS: u32 = 300;
+/// Longest wait for a RealSense frame, milliseconds.
+pub const REALSENSE_MAX_TIMEOUT_MS: u32 = 60_000;
+
+/// Settings of the RealSense source: the device and its Z16 depth stream. Intrinsics and depth
+/// scale come from the device; the pose from `camera.pose` or a plane fit.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RealSenseSource {
+    /// Serial number of the camera to open; `None` = the first one found.
+    pub serial: Option<String>,
+    /// Depth stream width, pixels (a mode the camera offers, e.g. 640 or 848).
+    pub width: u32,
+    /// Depth stream height, pixels.
+    pub height: u32,
+    /// Depth stream rate, frames per second (the camera's; `camera.rate_hz` paces the pipeline).
+    pub fps: u32,
+    /// librealsense2 to load (a `librealsense2.so` or the `pyrealsense2` wheel's module,
+    /// relative to the config file); `None` = `$PSGRASP_REALSENSE_LIB`, a system
+    /// `librealsense2.so`, then the project venv's `pyrealsense2`.
+    pub library: Option<PathBuf>,
+    /// Longest wait for a frame before it counts as a failed read, milliseconds.
+    pub timeout_ms: u32,
+}
+
+impl Default for RealSenseSource {
+    fn default() -> Self {
+        Self {
+            serial: None,
+            width: 640,
+            height: 480,
+            fps: 30,
+            library: None,
+            timeout_ms: 5000,
+        }
+    }
 }
 
 /// A rigid pose: translation in metres and a unit quaternion (x, y, z, w).
@@ -320,6 +368,11 @@ impl PipelineConfig {
     /// Joins the model backend's relative paths onto `base` (see [`PipelineConfig::load`]).
     fn resolve_paths(&mut self, base: &Path) {
         self.cell.inference.resolve_paths(base);
+        if let Some(lib) = &mut self.camera.realsense.library {
+            if lib.is_relative() {
+                *lib = base.join(&*lib);
+            }
+        }
     }
 
     /// Parses and validates TOML text (`origin` names it in errors); unknown keys are refused
@@ -503,6 +556,39 @@ impl PipelineConfig {
                 ));
             }
         }
+        let rs = &c.realsense;
+        for (field, v, max) in [
+            ("camera.realsense.width", rs.width, REALSENSE_MAX_SIDE),
+            ("camera.realsense.height", rs.height, REALSENSE_MAX_SIDE),
+            ("camera.realsense.fps", rs.fps, REALSENSE_MAX_FPS),
+            (
+                "camera.realsense.timeout_ms",
+                rs.timeout_ms,
+                REALSENSE_MAX_TIMEOUT_MS,
+            ),
+        ] {
+            if !(1..=max).contains(&v) {
+                return Err(bad(field, format!("{v} must be in 1..={max}")));
+            }
+        }
+        if let Some(serial) = &rs.serial {
+            if serial.is_empty() || serial.contains('\0') {
+                return Err(bad(
+                    "camera.realsense.serial",
+                    format!("{serial:?} must be a non-empty serial number (or left out)"),
+                ));
+            }
+        }
+        if rs
+            .library
+            .as_ref()
+            .is_some_and(|p| p.as_os_str().is_empty())
+        {
+            return Err(bad(
+                "camera.realsense.library",
+                "must name a file (or be left out)".into(),
+            ));
+        }
         if c.source == SourceKind::Synthetic
             && (c.synthetic.objects == 0 || c.synthetic.objects > 64)
         {
@@ -577,6 +663,32 @@ mod tests {
     }
 
     #[test]
+    fn the_realsense_library_path_is_relative_to_the_config_file() {
+        let dir = std::env::temp_dir().join(format!("psgrasp-config-rs-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("config")).unwrap();
+        let file = dir.join("config/x.toml");
+        std::fs::write(
+            &file,
+            "[camera.realsense]\nlibrary = \"../lib/librealsense2.so\"\n",
+        )
+        .unwrap();
+        let cfg = PipelineConfig::load(&file).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(
+            cfg.camera.realsense.library,
+            Some(dir.join("config/../lib/librealsense2.so"))
+        );
+        assert_eq!(
+            parse("[camera.realsense]\nlibrary = \"/abs/librealsense2.so\"")
+                .unwrap()
+                .camera
+                .realsense
+                .library,
+            Some(PathBuf::from("/abs/librealsense2.so"))
+        );
+    }
+
+    #[test]
     fn vgn_model_paths_are_relative_to_the_config_file() {
         let dir = std::env::temp_dir().join(format!("psgrasp-config-vgn-{}", std::process::id()));
         std::fs::create_dir_all(dir.join("config")).unwrap();
@@ -622,6 +734,31 @@ mod tests {
         assert!(e.to_string().contains("pipeline.name"), "{e}");
         let e = parse("[camera]\nsource = \"replay\"").unwrap_err();
         assert!(e.to_string().contains("camera.replay.path"), "{e}");
+        let e = parse("[camera.realsense]\nfps = 0").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "invalid config <test>: camera.realsense.fps: 0 must be in 1..=300"
+        );
+        let e = parse("[camera.realsense]\nwidth = 100000").unwrap_err();
+        assert!(e.to_string().contains("camera.realsense.width"), "{e}");
+        let e = parse("[camera.realsense]\nserial = \"\"").unwrap_err();
+        assert!(e.to_string().contains("camera.realsense.serial"), "{e}");
+        let e = parse("[camera.realsense]\nwdth = 640").unwrap_err();
+        assert!(e.to_string().contains("wdth"), "{e}");
+        let rs = parse(
+            "[camera]\nsource = \"realsense\"\n[camera.realsense]\nserial = \"123\"\nwidth = 848\n",
+        )
+        .unwrap()
+        .camera;
+        assert_eq!(rs.source, SourceKind::Realsense);
+        assert_eq!(
+            (
+                rs.realsense.serial.as_deref(),
+                rs.realsense.width,
+                rs.realsense.height
+            ),
+            (Some("123"), 848, 480)
+        );
         let e = parse("[depth_scale]\nenabled = true\nmax_deviation = 0.9").unwrap_err();
         assert!(e.to_string().contains("depth_scale"), "{e}");
         assert!(
