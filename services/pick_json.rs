@@ -85,7 +85,7 @@ pub fn pick_from_json(v: &Value) -> Option<PickRecord> {
         flange_pregrasp_position: p3(&b["pregrasp_flange"]["position_m"])?,
         camera_position: p3(&b["camera"]["position_m"])?,
         camera_orientation_xyzw: q4(&b["camera"]["orientation_xyzw"])?,
-        reserved: [0; 2],
+        reserved: [0; 3],
     })
 }
 

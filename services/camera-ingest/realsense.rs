@@ -1,19 +1,17 @@
 //! The RealSense depth source: an Intel RealSense camera through librealsense2, loaded at run
 //! time (`psgrasp-realsense`). Intrinsics and depth scale come from the device; the pose from
 //! `camera.pose`, or the workspace is placed on the dominant plane once, as for replay.
-use super::{fit_workspace_to_plane, DepthSource, SourceFrame};
+use super::{CameraPlacement, DepthSource, SourceFrame};
 use anyhow::{Context, Result};
 use psgrasp_config::PipelineConfig;
-use psgrasp_geometry::{CameraIntrinsics, CameraModel, DepthImage};
+use psgrasp_geometry::{CameraIntrinsics, DepthImage};
 use psgrasp_ipc::now_ns;
 use psgrasp_realsense::{CameraSettings, Library, RealSenseCamera};
 
 /// Frames of a RealSense camera's Z16 depth stream, in metres.
 pub struct RealSenseSource {
     camera: RealSenseCamera,
-    intrinsics: CameraIntrinsics,
-    pose: Option<nalgebra::Isometry3<f32>>,
-    cfg: PipelineConfig,
+    placement: CameraPlacement,
 }
 
 impl RealSenseSource {
@@ -70,32 +68,18 @@ impl RealSenseSource {
         );
         Ok(Self {
             camera,
-            intrinsics,
-            pose: cfg.camera.pose.map(|p| p.isometry()),
-            cfg: cfg.clone(),
+            placement: CameraPlacement::new(intrinsics, cfg),
         })
     }
 
     /// The depth stream's intrinsics (from the device).
     pub fn intrinsics(&self) -> CameraIntrinsics {
-        self.intrinsics
+        self.placement.intrinsics()
     }
 
     /// Metres per depth count of the device's depth sensor.
     pub fn depth_scale(&self) -> f32 {
         self.camera.depth_scale()
-    }
-
-    fn camera_for(&mut self, depth: &DepthImage) -> Result<CameraModel> {
-        if let Some(pose) = self.pose {
-            return Ok(CameraModel {
-                intrinsics: self.intrinsics,
-                workspace_from_camera: pose,
-            });
-        }
-        let camera = fit_workspace_to_plane(depth, &self.intrinsics, &self.cfg)?;
-        self.pose = Some(camera.workspace_from_camera);
-        Ok(camera)
     }
 }
 
@@ -109,7 +93,7 @@ impl DepthSource for RealSenseSource {
         let capture_ns = frame.capture_unix_ns().unwrap_or_else(now_ns);
         let depth = DepthImage::from_metres(frame.width, frame.height, frame.depth_m)
             .with_context(|| format!("frame {} of {}", frame.frame_number, self.camera.label()))?;
-        let camera = self.camera_for(&depth)?;
+        let camera = self.placement.camera_for(&depth)?;
         Ok(Some(SourceFrame {
             depth,
             camera,

@@ -174,15 +174,51 @@ impl IntrinsicsFile {
     }
 }
 
+/// Where the camera of a recorded or real source is: the configured `camera.pose`, or, without
+/// one, the workspace put on the dominant plane of the first frame, then kept.
+pub struct CameraPlacement {
+    intrinsics: CameraIntrinsics,
+    pose: Option<nalgebra::Isometry3<f32>>,
+    cfg: PipelineConfig,
+}
+
+impl CameraPlacement {
+    /// The placement of a camera with `intrinsics` under `cfg`.
+    pub fn new(intrinsics: CameraIntrinsics, cfg: &PipelineConfig) -> Self {
+        Self {
+            intrinsics,
+            pose: cfg.camera.pose.map(|p| p.isometry()),
+            cfg: cfg.clone(),
+        }
+    }
+
+    /// The camera's intrinsics.
+    pub fn intrinsics(&self) -> CameraIntrinsics {
+        self.intrinsics
+    }
+
+    /// The camera model of a frame: the known pose, or the plane fit of this first frame.
+    pub fn camera_for(&mut self, depth: &DepthImage) -> Result<CameraModel> {
+        if let Some(pose) = self.pose {
+            return Ok(CameraModel {
+                intrinsics: self.intrinsics,
+                workspace_from_camera: pose,
+            });
+        }
+        // No calibrated pose: put the workspace on the dominant plane once, then keep it.
+        let camera = fit_workspace_to_plane(depth, &self.intrinsics, &self.cfg)?;
+        self.pose = Some(camera.workspace_from_camera);
+        Ok(camera)
+    }
+}
+
 /// Replays 16-bit PNG or `.npy` depth files from a file or a folder.
 pub struct ReplaySource {
     files: Vec<PathBuf>,
     next: usize,
     looping: bool,
-    intrinsics: CameraIntrinsics,
     unit_m: f32,
-    pose: Option<nalgebra::Isometry3<f32>>,
-    cfg: PipelineConfig,
+    placement: CameraPlacement,
 }
 
 impl ReplaySource {
@@ -197,29 +233,13 @@ impl ReplaySource {
             (f.intrinsics(), f.depth_unit_m)
         };
         let unit_m = file_unit.or(r.depth_unit_m).unwrap_or(0.001);
-        let pose = cfg.camera.pose.map(|p| p.isometry());
         Ok(Self {
             files,
             next: 0,
             looping: r.looping,
-            intrinsics,
             unit_m,
-            pose,
-            cfg: cfg.clone(),
+            placement: CameraPlacement::new(intrinsics, cfg),
         })
-    }
-
-    fn camera_for(&mut self, depth: &DepthImage) -> Result<CameraModel> {
-        if let Some(pose) = self.pose {
-            return Ok(CameraModel {
-                intrinsics: self.intrinsics,
-                workspace_from_camera: pose,
-            });
-        }
-        // No calibrated pose: put the workspace on the dominant plane once, then keep it.
-        let camera = fit_workspace_to_plane(depth, &self.intrinsics, &self.cfg)?;
-        self.pose = Some(camera.workspace_from_camera);
-        Ok(camera)
     }
 }
 
@@ -263,8 +283,9 @@ impl DepthSource for ReplaySource {
         let path = self.files[self.next].clone();
         self.next += 1;
         // Held to the intrinsics' size from the file header, before the pixels are decoded.
-        let depth = load_depth_file_sized(&path, self.unit_m, FrameSize::of(&self.intrinsics))?;
-        let camera = self.camera_for(&depth)?;
+        let size = FrameSize::of(&self.placement.intrinsics());
+        let depth = load_depth_file_sized(&path, self.unit_m, size)?;
+        let camera = self.placement.camera_for(&depth)?;
         Ok(Some(SourceFrame {
             depth,
             camera,

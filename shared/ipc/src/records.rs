@@ -100,7 +100,7 @@ pub struct PickRecord {
     /// The camera's orientation in the robot base frame, quaternion xyzw.
     pub camera_orientation_xyzw: [f32; 4],
     /// Reserved, zero.
-    pub reserved: [u32; 2],
+    pub reserved: [u32; 3],
 }
 
 fn xyzw(q: &UnitQuaternion<f64>) -> [f32; 4] {
@@ -159,7 +159,7 @@ impl PickRecord {
             flange_pregrasp_position: position(&pre.flange),
             camera_position: position(&base.camera_in_base),
             camera_orientation_xyzw: xyzw(&base.camera_in_base.rotation),
-            reserved: [0; 2],
+            reserved: [0; 3],
         }
     }
 
