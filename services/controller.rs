@@ -28,7 +28,9 @@ pub enum PickResult {
     Failure,
 }
 
-/// The answer to a pick request.
+/// The answer to a pick request (a value returned once per request: boxing the pick would only
+/// add an allocation).
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum PickAnswer {
     /// A pick of frame `frame_id`.

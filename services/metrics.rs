@@ -203,8 +203,10 @@ mod tests {
         st.pid = 11;
         st.frames_in = 2;
         m.observe_stats(&st, false);
-        let mut h = FrameHeader::default();
-        h.kind = MessageKind::SelectedGrasps as u32;
+        let mut h = FrameHeader {
+            kind: MessageKind::SelectedGrasps as u32,
+            ..Default::default()
+        };
         h.stamps_ns[Stamp::IngestPublished as usize] = 1_000_000_000;
         h.stamps_ns[Stamp::SelectionEnd as usize] = 1_050_000_000;
         m.observe_outcome(&FrameOutcome {
