@@ -28,6 +28,10 @@ pub enum PictureError {
     },
 }
 
+/// Depth steps told apart in pictures, metres: finer than any object's relief, coarser than the
+/// noise of a depth camera on a flat surface.
+pub const DEPTH_STEP_M: f32 = 0.003;
+
 /// An RGB colour.
 pub type Rgb = [u8; 3];
 
@@ -53,21 +57,24 @@ impl RgbImage {
     }
 
     /// `depth` in grey, near = bright, no measurement black. The grey level is the depth's rank
-    /// among the frame's valid depths (histogram equalisation): a frame that sees both the
-    /// objects and a far background keeps the objects' relief visible.
+    /// among the frame's valid depths, in steps of [`DEPTH_STEP_M`] (histogram equalisation): a
+    /// frame that sees both the objects and a far background keeps the objects' relief visible,
+    /// and sensor noise on a flat floor stays within one step instead of turning into speckle.
     pub fn from_depth(depth: &DepthImage) -> Self {
-        let mut sorted: Vec<f32> = depth
+        let step = |d: f32| (d / DEPTH_STEP_M).floor() as i64;
+        let mut sorted: Vec<i64> = depth
             .data
             .iter()
-            .copied()
-            .filter(|d| is_valid_depth(*d))
+            .filter(|d| is_valid_depth(**d))
+            .map(|d| step(*d))
             .collect();
-        sorted.sort_unstable_by(f32::total_cmp);
+        sorted.sort_unstable();
         let n = sorted.len().max(1) as f32;
         let mut img = Self::new(depth.width, depth.height);
         for (i, d) in depth.data.iter().enumerate() {
             if is_valid_depth(*d) {
-                let rank = sorted.partition_point(|x| x < d) as f32;
+                let q = step(*d);
+                let rank = sorted.partition_point(|x| *x < q) as f32;
                 let g = (235.0 - 195.0 * rank / n).clamp(0.0, 255.0) as u8;
                 img.data[3 * i..3 * i + 3].copy_from_slice(&[g, g, g]);
             }
