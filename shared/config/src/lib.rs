@@ -471,6 +471,7 @@ impl PipelineConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Vector3;
     use psgrasp_inference::BackendConfig;
 
     fn parse(s: &str) -> Result<PipelineConfig, ConfigError> {
