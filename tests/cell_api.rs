@@ -283,25 +283,26 @@ fn every_controller_interface_hands_out_the_same_pick() {
     let v: Value = serde_json::from_str(&health.1).unwrap();
     assert_eq!(v["healthy"], true);
     assert_eq!(v["outcomes"]["Ok"], 3);
-    let (s, metrics) = http_get(&format!("{base}/metrics"));
-    assert_eq!(s, 200);
-    assert!(
-        metrics.contains("psgrasp_frames_total{status=\"Ok\"} 3"),
-        "{metrics}"
-    );
-    assert!(
-        metrics.contains("psgrasp_latency_seconds_count{span=\"end_to_end\"} 3"),
-        "{metrics}"
-    );
-    assert!(
-        metrics.contains("psgrasp_stage_up{stage=\"inference\",worker=\"0\"} 1"),
-        "{metrics}"
-    );
-    assert!(
-        metrics
-            .contains("psgrasp_stage_frames_out_total{stage=\"grasp-selection\",worker=\"0\"} 3"),
-        "{metrics}"
-    );
+    // Metrics: the stages' statistics arrive periodically, so wait for ones taken after the
+    // third frame (at most 10 s).
+    let expected = [
+        "psgrasp_frames_total{status=\"Ok\"} 3",
+        "psgrasp_latency_seconds_count{span=\"end_to_end\"} 3",
+        "psgrasp_stage_up{stage=\"inference\",worker=\"0\"} 1",
+        "psgrasp_stage_frames_out_total{stage=\"grasp-selection\",worker=\"0\"} 3",
+    ];
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let metrics = loop {
+        let (s, text) = http_get(&format!("{base}/metrics"));
+        assert_eq!(s, 200);
+        if expected.iter().all(|e| text.contains(e)) || Instant::now() > deadline {
+            break text;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    for e in expected {
+        assert!(metrics.contains(e), "{e} missing from\n{metrics}");
+    }
 
     // A success: no pick of a frame taken before it, through HTTP and C alike.
     let (s, b) = http_post(
