@@ -306,12 +306,12 @@ fn every_controller_interface_hands_out_the_same_pick() {
 
     // A success: no pick of a frame taken before it, through HTTP and C alike.
     let (s, b) = http_post(
-        &format!("{base}/v1/pick/result?wait_ms=300"),
+        &format!("{base}/v1/pick/result?wait_ms=1500"),
         r#"{"result": "success"}"#,
     );
     assert_eq!(s, 503, "{b}");
     assert!(b.contains("awaiting_new_frame"), "{b}");
-    let (rc, c_out) = run(&c_exe, &[cfg_arg, "current", "300"]);
+    let (rc, c_out) = run(&c_exe, &[cfg_arg, "current", "2000"]);
     assert_eq!(rc, 3, "{c_out}");
     assert!(c_out.contains("no pick: result 3"), "{c_out}");
 
