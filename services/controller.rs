@@ -79,6 +79,9 @@ pub struct CellStatus {
     pub latest_frame_id: Option<u64>,
     /// The latest frame's outcome (`Ok` or an error status name).
     pub latest_status: Option<String>,
+    /// The same as its wire code (0 = picks; the error record's status otherwise, as in
+    /// `docs/architecture.md`).
+    pub latest_status_code: Option<u32>,
     /// Picks of the latest frame (0 for an error record).
     pub latest_picks: usize,
     /// The latest error record's stage and message, if the latest frame is one.
@@ -223,23 +226,19 @@ impl CellClient {
     /// Health and counts as of now.
     pub fn status(&mut self) -> Result<CellStatus> {
         self.poll()?;
-        let down_after = self.stats_interval * STATS_INTERVALS_UNTIL_DOWN as u32;
         let workers: Vec<WorkerHealth> = self
             .stats_seen
             .values()
-            .map(|(st, seen)| {
-                let age = seen.elapsed();
-                WorkerHealth {
-                    stage: Stage::from_u32(st.stage).map_or("unknown", Stage::name),
-                    worker: st.worker,
-                    pid: st.pid,
-                    frames_in: st.frames_in,
-                    frames_out: st.frames_out,
-                    errors: st.errors,
-                    dropped: st.dropped,
-                    age_ms: age.as_millis() as u64,
-                    up: age <= down_after,
-                }
+            .map(|(st, seen)| WorkerHealth {
+                stage: Stage::from_u32(st.stage).map_or("unknown", Stage::name),
+                worker: st.worker,
+                pid: st.pid,
+                frames_in: st.frames_in,
+                frames_out: st.frames_out,
+                errors: st.errors,
+                dropped: st.dropped,
+                age_ms: seen.elapsed().as_millis() as u64,
+                up: self.is_up(seen),
             })
             .collect();
         let healthy = Stage::ALL
@@ -251,6 +250,7 @@ impl CellClient {
             healthy,
             latest_frame_id: latest.map(FrameOutcome::frame_id),
             latest_status: latest.map(|o| status_name(o.status())),
+            latest_status_code: latest.map(|o| o.status() as u32),
             latest_picks: latest.map_or(0, |o| o.picks.len()),
             latest_error: latest.filter(|o| o.status() != StatusCode::Ok).map(|o| {
                 format!(
@@ -264,8 +264,16 @@ impl CellClient {
         })
     }
 
-    /// The statistics of every worker seen, latest first per worker.
-    pub fn worker_stats(&self) -> impl Iterator<Item = &StageStats> {
-        self.stats_seen.values().map(|(st, _)| st)
+    /// Whether statistics that changed at `seen` are recent enough for their worker to count
+    /// as up (within [`STATS_INTERVALS_UNTIL_DOWN`] statistics intervals).
+    fn is_up(&self, seen: &Instant) -> bool {
+        seen.elapsed() <= self.stats_interval * STATS_INTERVALS_UNTIL_DOWN as u32
+    }
+
+    /// The latest statistics of every worker seen, and whether that worker is up.
+    pub fn worker_stats(&self) -> impl Iterator<Item = (&StageStats, bool)> {
+        self.stats_seen
+            .values()
+            .map(|(st, seen)| (st, self.is_up(seen)))
     }
 }

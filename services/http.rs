@@ -245,12 +245,7 @@ fn observe(client: &mut CellClient, metrics: &mut CellMetrics) -> Result<()> {
     for o in client.poll()? {
         metrics.observe_outcome(&o);
     }
-    let status = client.status()?;
-    for st in client.worker_stats() {
-        let up = status
-            .workers
-            .iter()
-            .any(|w| w.pid == st.pid && w.worker == st.worker && w.up);
+    for (st, up) in client.worker_stats() {
         metrics.observe_stats(st, up);
     }
     Ok(())

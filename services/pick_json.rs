@@ -1,18 +1,13 @@
 //! Picks as JSON, the one shape every controller-facing output uses (`psgrasp next-pick`,
 //! `psgrasp detect --json`, the HTTP endpoint): poses in the workspace frame and in the robot base
 //! frame, each as position + quaternion and as a row-major 4×4 matrix.
-use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use nalgebra::Point3;
 use psgrasp_ipc::PickRecord;
 use serde_json::{json, Value};
 
 /// A pose as `{position_m, orientation_xyzw, matrix}`.
 fn pose(position: [f32; 3], xyzw: [f32; 4]) -> Value {
-    let [x, y, z, w] = xyzw;
-    let p = Isometry3::from_parts(
-        Translation3::from(Vector3::from(position)),
-        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
-    )
-    .cast::<f64>();
+    let p = psgrasp_geometry::pose_from_xyzw(position, xyzw).cast::<f64>();
     json!({
         "position_m": position,
         "orientation_xyzw": xyzw,
@@ -92,6 +87,7 @@ pub fn pick_from_json(v: &Value) -> Option<PickRecord> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::{Isometry3, Translation3, Vector3};
     use psgrasp_geometry::RobotConfig;
 
     #[test]

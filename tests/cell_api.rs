@@ -136,21 +136,21 @@ fn cli_next_pick(config: &Path, flag: Option<&str>) -> PickRecord {
     pick_from_json(&v).unwrap_or_else(|| panic!("a pick in {v}"))
 }
 
-fn http_get(url: &str) -> (u16, String) {
-    let agent: ureq::Agent = ureq::Agent::config_builder()
+/// An HTTP client that hands back error statuses as answers (the tests check them).
+fn agent() -> ureq::Agent {
+    ureq::Agent::config_builder()
         .http_status_as_error(false)
         .build()
-        .into();
-    let mut r = agent.get(url).call().unwrap();
+        .into()
+}
+
+fn http_get(url: &str) -> (u16, String) {
+    let mut r = agent().get(url).call().unwrap();
     (r.status().as_u16(), r.body_mut().read_to_string().unwrap())
 }
 
 fn http_post(url: &str, body: &str) -> (u16, String) {
-    let agent: ureq::Agent = ureq::Agent::config_builder()
-        .http_status_as_error(false)
-        .build()
-        .into();
-    let mut r = agent
+    let mut r = agent()
         .post(url)
         .header("Content-Type", "application/json")
         .send(body)

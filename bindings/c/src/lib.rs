@@ -255,13 +255,7 @@ unsafe fn client_mut<'a>(
 }
 
 fn pose(position: [f32; 3], xyzw: [f32; 4]) -> psgrasp_pose {
-    let p = PickRecord {
-        base_position: position,
-        base_orientation_xyzw: xyzw,
-        ..Default::default()
-    }
-    .base_from_gripper()
-    .cast::<f64>();
+    let p = psgrasp_geometry::pose_from_xyzw(position, xyzw).cast::<f64>();
     let rows = psgrasp_geometry::robot::matrix_rows(&p);
     psgrasp_pose {
         position_m: position.map(f64::from),
@@ -419,18 +413,13 @@ pub unsafe extern "C" fn psgrasp_get_status(
         {
             *d = b as c_char;
         }
-        let latest_status = client
-            .latest()
-            .ok()
-            .flatten()
-            .map_or(0, |o| o.status() as u32);
         *out = psgrasp_status {
             healthy: s.healthy as u32,
             workers_up: s.workers.iter().filter(|w| w.up).count() as u32,
             workers_seen: s.workers.len() as u32,
             has_latest: s.latest_frame_id.is_some() as u32,
             latest_frame_id: s.latest_frame_id.unwrap_or(0),
-            latest_status,
+            latest_status: s.latest_status_code.unwrap_or(0),
             latest_picks: s.latest_picks as u32,
             frames_ok,
             frames_failed: s.outcomes.values().sum::<u64>() - frames_ok,

@@ -1,5 +1,5 @@
 //! `[camera]`: where depth frames come from (synthetic, replay, RealSense) and the camera's pose.
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use nalgebra::Isometry3;
 use psgrasp_geometry::CameraIntrinsics;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -161,10 +161,6 @@ pub struct PoseConfig {
 impl PoseConfig {
     /// As an isometry (the quaternion is normalised).
     pub fn isometry(&self) -> Isometry3<f32> {
-        let [x, y, z, w] = self.rotation_xyzw;
-        Isometry3::from_parts(
-            Translation3::from(Vector3::from(self.translation)),
-            UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
-        )
+        psgrasp_geometry::pose_from_xyzw(self.translation, self.rotation_xyzw)
     }
 }

@@ -29,6 +29,16 @@ pub use robot::{BaseFrame, PoseInBase, PoseSetting, RobotCell, RobotConfig};
 pub use setting::{check_setting, OutOfRange};
 pub use workspace::Workspace;
 
+/// The pose with translation `position` and the unit quaternion `xyzw` (x, y, z, w; normalised),
+/// as poses are written in configuration files, message fields and JSON.
+pub fn pose_from_xyzw(position: [f32; 3], xyzw: [f32; 4]) -> nalgebra::Isometry3<f32> {
+    let [x, y, z, w] = xyzw;
+    nalgebra::Isometry3::from_parts(
+        nalgebra::Translation3::from(nalgebra::Vector3::from(position)),
+        nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z)),
+    )
+}
+
 /// Errors raised when geometry inputs are invalid.
 #[derive(Debug, thiserror::Error, Clone, PartialEq)]
 pub enum GeometryError {

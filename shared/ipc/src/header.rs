@@ -1,6 +1,5 @@
 //! The frame header carried by every pipeline message.
 use iceoryx2::prelude::ZeroCopySend;
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use psgrasp_geometry::{CameraIntrinsics, CameraModel, Workspace};
 
 /// Version of the message layouts; bump on any layout change.
@@ -365,7 +364,6 @@ impl FrameHeader {
     pub fn camera(&self) -> CameraModel {
         let [fx, fy, cx, cy] = self.intrinsics;
         let p = self.workspace_from_camera;
-        let rotation = UnitQuaternion::from_quaternion(Quaternion::new(p[6], p[3], p[4], p[5]));
         CameraModel {
             intrinsics: CameraIntrinsics {
                 width: self.image_size[0],
@@ -375,9 +373,9 @@ impl FrameHeader {
                 cx,
                 cy,
             },
-            workspace_from_camera: Isometry3::from_parts(
-                Translation3::new(p[0], p[1], p[2]),
-                rotation,
+            workspace_from_camera: psgrasp_geometry::pose_from_xyzw(
+                [p[0], p[1], p[2]],
+                [p[3], p[4], p[5], p[6]],
             ),
         }
     }

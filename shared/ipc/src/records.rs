@@ -1,7 +1,7 @@
 //! Payload element types (all `#[repr(C)]`, `f32`/`u32` only, no padding surprises).
 use iceoryx2::prelude::ZeroCopySend;
-use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
-use psgrasp_geometry::{BaseFrame, GraspConfiguration, N_APPROACHES};
+use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
+use psgrasp_geometry::{pose_from_xyzw, BaseFrame, GraspConfiguration, N_APPROACHES};
 
 /// One grasp configuration `C = (c, b, {σ_i}, w, q, κ)` (112 bytes).
 #[repr(C)]
@@ -112,14 +112,6 @@ fn position(p: &Isometry3<f64>) -> [f32; 3] {
     p.translation.vector.cast::<f32>().into()
 }
 
-fn isometry(position: [f32; 3], xyzw: [f32; 4]) -> Isometry3<f32> {
-    let [x, y, z, w] = xyzw;
-    Isometry3::from_parts(
-        Translation3::from(Vector3::from(position)),
-        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
-    )
-}
-
 impl PickRecord {
     /// Builds a record from poses in the workspace frame and puts them into the robot base frame
     /// `base` of the frame.
@@ -165,22 +157,22 @@ impl PickRecord {
 
     /// The TCP pose in the workspace frame.
     pub fn workspace_from_gripper(&self) -> Isometry3<f32> {
-        isometry(self.position, self.orientation_xyzw)
+        pose_from_xyzw(self.position, self.orientation_xyzw)
     }
 
     /// The TCP pose in the robot base frame.
     pub fn base_from_gripper(&self) -> Isometry3<f32> {
-        isometry(self.base_position, self.base_orientation_xyzw)
+        pose_from_xyzw(self.base_position, self.base_orientation_xyzw)
     }
 
     /// The flange pose in the robot base frame.
     pub fn base_from_flange(&self) -> Isometry3<f32> {
-        isometry(self.flange_position, self.flange_orientation_xyzw)
+        pose_from_xyzw(self.flange_position, self.flange_orientation_xyzw)
     }
 
     /// The camera pose in the robot base frame.
     pub fn base_from_camera(&self) -> Isometry3<f32> {
-        isometry(self.camera_position, self.camera_orientation_xyzw)
+        pose_from_xyzw(self.camera_position, self.camera_orientation_xyzw)
     }
 
     /// The approach direction (gripper z axis) in the workspace frame.
@@ -348,6 +340,7 @@ impl NextPickResponse {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use nalgebra::Translation3;
     use psgrasp_geometry::RobotConfig;
     use std::mem::size_of;
 
