@@ -140,6 +140,9 @@ enum Command {
     Datagen(psgrasp_datagen::DatagenArgs),
     /// Draw a generated scene's labelled grasps on its depth image (PNG).
     Inspect(psgrasp_datagen::InspectArgs),
+    /// Generate the fixed test scenes of every level once, with a manifest of hashes
+    /// (`psgrasp eval --test-set DIR` runs on them; the repository's is data/testset).
+    Testset(psgrasp_eval::cli::TestSetArgs),
     /// Simulated clutter clearing: run detectors on the test scenes, report SR/CR per level.
     Eval(psgrasp_eval::EvalArgs),
 }
@@ -292,6 +295,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Datagen(args) => psgrasp_datagen::run_datagen(&args),
         Command::Inspect(args) => psgrasp_datagen::run_inspect(&args),
         Command::Eval(args) => psgrasp_eval::run_eval(&args),
+        Command::Testset(args) => psgrasp_eval::cli::run_testset(&args),
         Command::CheckConfig { config } => {
             let cfg = PipelineConfig::load(&config)?;
             psgrasp::launcher::preflight(&cfg)?;

@@ -10,10 +10,12 @@ use serde::{Deserialize, Serialize};
 
 /// Box dimensions of the gripper, in metres.
 ///
-/// Read from a file (a configuration table, a dataset), every key is optional: missing keys
-/// take the [`Default`] values; unknown keys are refused.
+/// Read from a file (a configuration table, a dataset) it is a [`crate::GripperTable`]: the
+/// built-in gripper file named by `model` (`config/grippers/`, default
+/// [`crate::DEFAULT_GRIPPER`]) with any of the four keys given beside it taking their place;
+/// unknown keys are refused.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+#[serde(try_from = "crate::grippers::GripperTable")]
 pub struct GripperModel {
     /// Largest opening between the finger pads.
     pub max_opening_m: f32,
@@ -26,14 +28,11 @@ pub struct GripperModel {
 }
 
 impl Default for GripperModel {
-    /// The Franka hand: 80 mm max opening, fingers 21×26×54 mm, hand 204×63×92 mm.
+    /// The hand of the default gripper file ([`crate::DEFAULT_GRIPPER`], `config/grippers/`):
+    /// the Franka hand (80 mm max opening, fingers 21×26×54 mm, hand 204×63×92 mm) with the
+    /// fingertips 15 mm past the TCP, the hand the shipped models were trained with.
     fn default() -> Self {
-        Self {
-            max_opening_m: 0.08,
-            finger_size_m: [0.021, 0.026, 0.054],
-            palm_size_m: [0.204, 0.063, 0.092],
-            tip_beyond_tcp_m: 0.015,
-        }
+        crate::grippers::default_gripper()
     }
 }
 

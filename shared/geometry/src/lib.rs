@@ -12,6 +12,7 @@ pub mod clearance;
 pub mod depth;
 pub mod grasp;
 pub mod gripper;
+pub mod grippers;
 pub mod robot;
 pub mod setting;
 pub mod workspace;
@@ -25,6 +26,7 @@ pub use grasp::{
     GraspConfiguration, N_APPROACHES,
 };
 pub use gripper::{GripperModel, OrientedBox};
+pub use grippers::{GripperTable, DEFAULT_GRIPPER, GRIPPER_FILES};
 pub use robot::{BaseFrame, PoseInBase, PoseSetting, RobotCell, RobotConfig};
 pub use setting::{check_setting, OutOfRange};
 pub use workspace::Workspace;

@@ -29,6 +29,10 @@ pub enum ObjectSource {
     RandomUrdf,
     /// Procedural objects plus every mesh set found.
     Mix,
+    /// The scanned and generated meshes (YCB and random URDF; the default): a set that is
+    /// missing is replaced by the procedural objects, with a warning, and the dataset records
+    /// `meshes+procedural` or `procedural`.
+    Meshes,
 }
 
 impl ObjectSource {
@@ -39,6 +43,7 @@ impl ObjectSource {
             ObjectSource::Ycb => "ycb",
             ObjectSource::RandomUrdf => "random-urdf",
             ObjectSource::Mix => "mix",
+            ObjectSource::Meshes => "meshes",
         }
     }
 }
@@ -50,7 +55,7 @@ pub struct DatagenArgs {
     #[arg(long, default_value_t = 100)]
     pub scenes: u64,
     /// Object source.
-    #[arg(long, value_enum, default_value_t = ObjectSource::Procedural)]
+    #[arg(long, value_enum, default_value_t = ObjectSource::Meshes)]
     pub objects: ObjectSource,
     /// Scene difficulty (train uses training objects, the others test objects).
     #[arg(long, value_enum, default_value_t = Difficulty::Train)]
@@ -102,35 +107,57 @@ pub fn default_mesh_dir() -> PathBuf {
         .join(".cache/psgrasp/objects")
 }
 
+/// The objects a run draws from.
+pub struct ObjectPool {
+    /// The objects with their split.
+    pub library: ObjectLibrary,
+    /// The meshes they reference.
+    pub meshes: MeshLibrary,
+    /// What was loaded: the source's name, or for [`ObjectSource::Meshes`] with a set missing
+    /// `meshes+procedural` / `procedural`.
+    pub source: String,
+}
+
 /// Builds the object library (and meshes) for a source.
-pub fn build_library(
-    source: ObjectSource,
-    mesh_dir: &Path,
-) -> Result<(ObjectLibrary, MeshLibrary), DatagenError> {
+pub fn build_library(source: ObjectSource, mesh_dir: &Path) -> Result<ObjectPool, DatagenError> {
+    use psgrasp_sim::mesh::MeshSet;
     let mut library = ObjectLibrary::default();
     let mut meshes = MeshLibrary::default();
     if matches!(source, ObjectSource::Procedural | ObjectSource::Mix) {
         library.extend(ObjectLibrary::procedural());
     }
-    let sets: &[psgrasp_sim::mesh::MeshSet] = match source {
+    let sets: &[MeshSet] = match source {
         ObjectSource::Procedural => &[],
-        ObjectSource::Ycb => &[psgrasp_sim::mesh::MeshSet::Ycb],
-        ObjectSource::RandomUrdf => &[psgrasp_sim::mesh::MeshSet::RandomUrdf],
-        ObjectSource::Mix => &[
-            psgrasp_sim::mesh::MeshSet::Ycb,
-            psgrasp_sim::mesh::MeshSet::RandomUrdf,
-        ],
+        ObjectSource::Ycb => &[MeshSet::Ycb],
+        ObjectSource::RandomUrdf => &[MeshSet::RandomUrdf],
+        ObjectSource::Mix | ObjectSource::Meshes => &[MeshSet::Ycb, MeshSet::RandomUrdf],
     };
+    let mut missing = 0;
     for set in sets {
         match psgrasp_sim::mesh::load_mesh_set(mesh_dir, *set, &mut meshes) {
             Ok(lib) => library.extend(lib),
-            Err(e) if source == ObjectSource::Mix => {
+            Err(e) if matches!(source, ObjectSource::Mix | ObjectSource::Meshes) => {
                 eprintln!("warning: skipping {set:?} meshes: {e}");
+                missing += 1;
             }
             Err(e) => return Err(e.into()),
         }
     }
-    Ok((library, meshes))
+    let mut name = source.name().to_string();
+    if source == ObjectSource::Meshes && missing > 0 {
+        library.extend(ObjectLibrary::procedural());
+        name = if missing == sets.len() {
+            "procedural".into()
+        } else {
+            "meshes+procedural".into()
+        };
+        eprintln!("warning: procedural objects stand in for the missing mesh set ({name}); run scripts/fetch_objects.sh");
+    }
+    Ok(ObjectPool {
+        library,
+        meshes,
+        source: name,
+    })
 }
 
 fn load_config(args: &DatagenArgs) -> anyhow::Result<GenerationConfig> {
@@ -241,7 +268,8 @@ pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
     anyhow::ensure!(jobs >= 1, "--jobs must be at least 1");
     let config = load_config(args)?;
     let mesh_dir = args.mesh_dir.clone().unwrap_or_else(default_mesh_dir);
-    let (library, meshes) = build_library(args.objects, &mesh_dir)?;
+    let pool = build_library(args.objects, &mesh_dir)?;
+    let (library, meshes) = (&pool.library, &pool.meshes);
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     remove_stale_temp_files(&args.out);
@@ -262,7 +290,7 @@ pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
         scenes_requested: args.scenes,
         difficulty: args.difficulty,
         split: args.difficulty.split(),
-        object_source: args.objects.name().into(),
+        object_source: pool.source.clone(),
         config: config.clone(),
         train_objects: names(Split::Train),
         test_objects: names(Split::Test),
@@ -309,13 +337,12 @@ pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
     let next = AtomicUsize::new(0);
     let stop = AtomicBool::new(false);
     let (tx, rx) = mpsc::channel::<Result<ManifestScene, (u64, DatagenError)>>();
-    let source_name = args.objects.name();
+    let source_name = pool.source.as_str();
     let mut first_error = None;
     std::thread::scope(|s| {
         for _ in 0..jobs.min(todo.len().max(1)) {
             let tx = tx.clone();
-            let (todo, next, stop, library, meshes, config) =
-                (&todo, &next, &stop, &library, &meshes, &config);
+            let (todo, next, stop, config) = (&todo, &next, &stop, &config);
             let out = &args.out;
             let (run_seed, difficulty) = (args.seed, args.difficulty);
             s.spawn(move || loop {

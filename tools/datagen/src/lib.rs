@@ -19,6 +19,7 @@ pub use cli::{run_datagen, run_inspect, DatagenArgs, InspectArgs, ObjectSource};
 pub use dataset::{read_scene, write_scene, Manifest, SceneMeta, SceneRecord};
 pub use generate::{
     derive_seed, generate_record, generate_record_with_recipe, Difficulty, GenerationConfig,
+    ObjectCounts,
 };
 pub use labels::{generate_labels, GraspLabel, LabelConfig, LabelSet, LabelStats};
 pub use targets::{label_grid, LABEL_CONTACT, LABEL_EMPTY, LABEL_GRIPPER};

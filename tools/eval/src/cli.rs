@@ -10,7 +10,17 @@
 //! rerun with the same `--out` skips them. At the end `OUT/summary.md`, `OUT/summary.json` and
 //! `OUT/summary.png` are written and the Markdown is printed.
 use crate::detectors::{default_detectors, BuiltDetector, DetectorList, DetectorSpec};
-use crate::protocol::{run_scene_with, ProtocolConfig};
+use crate::protocol::{clear_scene, run_scene_with, scene_seed, ProtocolConfig};
+use crate::testset::TestSet;
+use psgrasp_datagen::cli::ObjectPool;
+
+/// Where an evaluation's scenes come from.
+enum SceneSource {
+    /// Generated from the run seeds.
+    Generated(ObjectPool),
+    /// The fixed test set.
+    Fixed(TestSet),
+}
 use crate::records::{write_atomic, RecordsFile, RunDescription, SceneKey, RECORDS_VERSION};
 use crate::report::summarize;
 use crate::EvalError;
@@ -58,8 +68,16 @@ pub struct EvalArgs {
     /// left out).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Object source of the test scenes.
-    #[arg(long, value_enum, default_value_t = ObjectSource::Procedural)]
+    /// The fixed test set to run (`psgrasp testset` writes one; scene i of a level is its stored
+    /// scene i, the seed seeds the depth noise and the detectors' sampling).
+    #[arg(long, default_value = crate::testset::DEFAULT_TESTSET_DIR)]
+    pub test_set: PathBuf,
+    /// Generate the scenes from the seeds instead of taking the test set's (scene i of seed S
+    /// is the dataset's test scene with seed `derive_seed(S, i)`), e.g. for tuning seeds.
+    #[arg(long)]
+    pub generate_scenes: bool,
+    /// Object source of generated test scenes (--generate-scenes).
+    #[arg(long, value_enum, default_value_t = ObjectSource::Meshes)]
     pub objects: ObjectSource,
     /// Directory of the fetched meshes (default `~/.cache/psgrasp/objects`).
     #[arg(long)]
@@ -70,6 +88,80 @@ pub struct EvalArgs {
     /// No progress line.
     #[arg(long)]
     pub quiet: bool,
+}
+
+/// Arguments of `psgrasp testset`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct TestSetArgs {
+    /// Output directory (the repository's test set is `data/testset`).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Run seed of the scenes.
+    #[arg(long, default_value_t = 2026)]
+    pub seed: u64,
+    /// Scenes per level (the paper: 100).
+    #[arg(long, default_value_t = 100)]
+    pub scenes: u64,
+    /// TOML file with a `ProtocolConfig` whose `[scenes]` settings generate the scenes.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Object source.
+    #[arg(long, value_enum, default_value_t = ObjectSource::Meshes)]
+    pub objects: ObjectSource,
+    /// Directory of the fetched meshes (default `~/.cache/psgrasp/objects`).
+    #[arg(long)]
+    pub mesh_dir: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+}
+
+/// `psgrasp testset`: generates the fixed test scenes of every level and their manifest.
+pub fn run_testset(args: &TestSetArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.scenes > 0, "--scenes must be at least 1");
+    let protocol = load_protocol(args.config.as_deref())?;
+    let mesh_dir = args.mesh_dir.clone().unwrap_or_else(default_mesh_dir);
+    let pool = build_library(args.objects, &mesh_dir)?;
+    let jobs = args.jobs.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
+    let mut command = format!(
+        "psgrasp testset --out {} --seed {} --scenes {} --objects {}",
+        args.out.display(),
+        args.seed,
+        args.scenes,
+        args.objects.name()
+    );
+    if let Some(c) = &args.config {
+        command.push_str(&format!(" --config {}", c.display()));
+    }
+    let start = Instant::now();
+    let manifest = crate::testset::write_test_set(&crate::testset::TestSetRequest {
+        out: &args.out,
+        run_seed: args.seed,
+        scenes: args.scenes,
+        pool: &pool,
+        protocol: &protocol,
+        jobs,
+        command,
+    })?;
+    for (name, level) in &manifest.levels {
+        let z = level.wall_zones;
+        println!(
+            "{name}: {} scenes, {} objects, {} within 20 mm of a side wall, {} in a corner",
+            level.scenes, z.objects, z.near_wall, z.in_corner
+        );
+    }
+    println!(
+        "{}: {} meshes, objects {}, {:.0} s",
+        args.out.display(),
+        manifest.meshes.len(),
+        manifest.object_source,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 fn load_protocol(path: Option<&Path>) -> anyhow::Result<ProtocolConfig> {
@@ -169,12 +261,13 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     let levels = dedup(&args.levels);
     let seeds = dedup(&args.seeds);
 
+    let scene_source = scene_source_name(args)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let request = RunDescription {
         format: "psgrasp-eval".into(),
         version: RECORDS_VERSION,
-        object_source: args.objects.name().into(),
+        object_source: scene_source.clone(),
         protocol: protocol.clone(),
         detectors: detectors
             .iter()
@@ -209,10 +302,8 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
         .collect();
     let summary = summarize(records.lines(), &names, &levels, &seeds, args.scenes);
     let mut md = format!(
-        "# psgrasp eval: {} scenes per level and seed, seeds {:?}, objects {}\n\n",
-        args.scenes,
-        seeds,
-        args.objects.name()
+        "# psgrasp eval: {} scenes per level and seed, seeds {:?}, scenes: {}\n\n",
+        args.scenes, seeds, scene_source
     );
     md.push_str(&summary.markdown(&seeds));
     write_atomic(&args.out.join("summary.md"), md.as_bytes())?;
@@ -230,6 +321,26 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// What the scenes come from, as `run.json` records it: the test set and its manifest's sha256,
+/// or the object source of generated scenes.
+fn scene_source_name(args: &EvalArgs) -> anyhow::Result<String> {
+    if args.generate_scenes {
+        return Ok(format!("generated, objects {}", args.objects.name()));
+    }
+    let path = args.test_set.join("manifest.json");
+    let bytes = std::fs::read(&path).with_context(|| {
+        format!(
+            "reading the test set's {} (make one with `psgrasp testset`, or run with --generate-scenes)",
+            path.display()
+        )
+    })?;
+    Ok(format!(
+        "test set {} (manifest sha256 {})",
+        args.test_set.display(),
+        psgrasp_inference::learned::card::sha256_hex(&bytes)
+    ))
 }
 
 fn run_jobs(
@@ -269,7 +380,21 @@ fn run_jobs(
         d.build(protocol)?;
     }
     let mesh_dir = args.mesh_dir.clone().unwrap_or_else(default_mesh_dir);
-    let (library, meshes) = build_library(args.objects, &mesh_dir)?;
+    let source = if args.generate_scenes {
+        SceneSource::Generated(build_library(args.objects, &mesh_dir)?)
+    } else {
+        let set = TestSet::open(&args.test_set, &mesh_dir)?;
+        for &level in levels {
+            anyhow::ensure!(
+                set.scene_count(level) >= args.scenes,
+                "the test set {} holds {} {level:?} scenes, fewer than --scenes {}",
+                args.test_set.display(),
+                set.scene_count(level),
+                args.scenes
+            );
+        }
+        SceneSource::Fixed(set)
+    };
     let jobs = args
         .jobs
         .unwrap_or_else(|| {
@@ -301,8 +426,7 @@ fn run_jobs(
     std::thread::scope(|s| {
         for _ in 0..jobs {
             let tx = tx.clone();
-            let (todo, next, stop, library, meshes, by_name) =
-                (&todo, &next, &stop, &library, &meshes, &by_name);
+            let (todo, next, stop, by_name, source) = (&todo, &next, &stop, &by_name, &source);
             s.spawn(move || {
                 let mut backends: HashMap<String, BuiltDetector> = HashMap::new();
                 loop {
@@ -324,15 +448,29 @@ fn run_jobs(
                         let backend = backends
                             .get_mut(&key.detector)
                             .expect("inserted just above");
-                        run_scene_with(
-                            key.level,
-                            key.seed,
-                            key.scene,
-                            library,
-                            meshes,
-                            backend.as_detector(),
-                            protocol,
-                        )
+                        match source {
+                            SceneSource::Generated(pool) => run_scene_with(
+                                key.level,
+                                key.seed,
+                                key.scene,
+                                &pool.library,
+                                &pool.meshes,
+                                backend.as_detector(),
+                                protocol,
+                            ),
+                            SceneSource::Fixed(set) => {
+                                let started = Instant::now();
+                                clear_scene(
+                                    key.level,
+                                    scene_seed(key.seed, key.scene),
+                                    set.scene(key.level, key.scene)?,
+                                    &set.meshes,
+                                    backend.as_detector(),
+                                    protocol,
+                                    started,
+                                )
+                            }
+                        }
                     })();
                     let msg = result
                         .map(|r| (key.clone(), r))

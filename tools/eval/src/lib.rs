@@ -23,6 +23,7 @@ pub mod plot;
 pub mod protocol;
 pub mod records;
 pub mod report;
+pub mod testset;
 
 pub use cli::{run_eval, EvalArgs};
 pub use detectors::{
@@ -33,9 +34,10 @@ pub use execute::{
     ExecutionReport, GraspCommand, GraspOutcome, HandPart,
 };
 pub use protocol::{
-    run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, PickTarget, ProtocolConfig,
-    RemainingObject, SceneEnd, SceneRun, SceneSummary, TouchRecord, TouchedThing,
+    clear_scene, run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, PickTarget,
+    ProtocolConfig, RemainingObject, SceneEnd, SceneRun, SceneSummary, TouchRecord, TouchedThing,
 };
+pub use testset::{TestSet, TestSetManifest, DEFAULT_TESTSET_DIR};
 
 use std::path::PathBuf;
 
@@ -124,6 +126,14 @@ pub enum EvalError {
         dir: PathBuf,
         /// What differs.
         what: String,
+    },
+    /// A fixed test set is missing, changed or does not hold what was asked for.
+    #[error("test set {dir}: {reason}")]
+    TestSet {
+        /// Its directory.
+        dir: PathBuf,
+        /// What is wrong.
+        reason: String,
     },
     /// A PNG could not be written.
     #[error("{path}: PNG encoding failed: {reason}")]

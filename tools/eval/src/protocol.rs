@@ -374,7 +374,7 @@ pub fn run_scene_with(
     index: u64,
     library: &ObjectLibrary,
     meshes: &MeshLibrary,
-    mut detector: Detector<'_>,
+    detector: Detector<'_>,
     cfg: &ProtocolConfig,
 ) -> Result<SceneRun, EvalError> {
     if level == Difficulty::Train {
@@ -385,13 +385,28 @@ pub fn run_scene_with(
     }
     cfg.validate()?;
     let started = Instant::now();
-    let gen = &cfg.scenes;
-    let gripper = gen.cell.gripper;
     let seed = scene_seed(run_seed, index);
-    let mut recipe = level.recipe(&gen.settle);
-    recipe.scale_range = gen.scale_range;
+    let gen = &cfg.scenes;
+    let recipe = gen.scene_recipe(level);
     let pool = library.select(Some(level.split()), level.simple_only());
     let (first, _) = generate_scene(derive_seed(seed, 1), &pool, &gen.cell.bin, meshes, &recipe)?;
+    clear_scene(level, seed, first, meshes, detector, cfg, started)
+}
+
+/// Runs the clearing protocol on `first`, a scene of `level` (a stored test scene or one just
+/// generated): `seed` ([`scene_seed`] of the run seed and scene index) seeds the depth noise and
+/// the detector's sampling of every round.
+pub fn clear_scene(
+    level: Difficulty,
+    seed: u64,
+    first: Scene,
+    meshes: &MeshLibrary,
+    mut detector: Detector<'_>,
+    cfg: &ProtocolConfig,
+    started: Instant,
+) -> Result<SceneRun, EvalError> {
+    let gen = &cfg.scenes;
+    let gripper = gen.cell.gripper;
     let camera = default_camera(first.bin(), gen.intrinsics);
     let objects = first.object_count();
     let mut scene = first;

@@ -26,8 +26,7 @@ fn the_scale_found_in_cluttered_noisy_frames_is_the_noise_factor() {
         (Difficulty::Medium, 0),
     ] {
         let seed = derive_seed(7, index);
-        let mut recipe = level.recipe(&gen.settle);
-        recipe.scale_range = gen.scale_range;
+        let recipe = gen.scene_recipe(level);
         let pool = library.select(Some(level.split()), level.simple_only());
         let (scene, _) =
             generate_scene(derive_seed(seed, 1), &pool, &gen.cell.bin, &meshes, &recipe).unwrap();
@@ -80,7 +79,7 @@ fn the_scale_found_in_cluttered_noisy_frames_is_the_noise_factor() {
         &library.select(Some(Difficulty::Medium.split()), false),
         &gen.cell.bin,
         &meshes,
-        &Difficulty::Medium.recipe(&gen.settle),
+        &gen.scene_recipe(Difficulty::Medium),
     )
     .unwrap()
     .0;

@@ -87,6 +87,11 @@ pub struct SceneRecipe {
     pub max_objects: usize,
     /// Range of the uniform random scale applied to each object.
     pub scale_range: [f32; 2],
+    /// An object whose drawn scale makes the second-smallest side of its bounding box wider
+    /// than this is scaled down to it, so that every object fits the hand's opening in at least
+    /// one horizontal direction whichever face it rests on (the paper scales its objects
+    /// randomly to fit the hand); `None` = no limit.
+    pub fit_width_m: Option<f32>,
     /// Probability of using the small bin ([`BinModel::small`]) instead of the default one.
     pub small_bin_probability: f32,
     /// Physics settings.
@@ -99,6 +104,7 @@ impl Default for SceneRecipe {
             min_objects: 1,
             max_objects: 20,
             scale_range: [0.8, 1.2],
+            fit_width_m: None,
             small_bin_probability: 0.0,
             settle: SettleConfig::default(),
         }
@@ -120,9 +126,13 @@ pub fn generate_scene(
     let [s0, s1] = recipe.scale_range;
     if !(s0.is_finite() && s1.is_finite() && s0 > 0.0 && s1 >= s0)
         || recipe.min_objects > recipe.max_objects
+        || recipe
+            .fit_width_m
+            .is_some_and(|w| !(w.is_finite() && w > 0.0))
     {
         return Err(SimError::InvalidConfig {
-            reason: "scale_range must be 0 < lo <= hi and min_objects <= max_objects",
+            reason:
+                "scale_range must be 0 < lo <= hi, min_objects <= max_objects and fit_width_m > 0",
         });
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -142,6 +152,10 @@ pub fn generate_scene(
                 rng.random_range(s0..=s1)
             } else {
                 s0
+            };
+            let s = match recipe.fit_width_m {
+                Some(w) if obj.fit_extent_m * s > w => w / obj.fit_extent_m,
+                _ => s,
             };
             obj.spec.scaled(s)
         })

@@ -15,6 +15,8 @@ pub struct MeshAsset {
     pub triangles: Vec<[u32; 3]>,
     /// Convex pieces (hull vertex sets) approximating the solid, for physics.
     pub convex_parts: Vec<Vec<[f32; 3]>>,
+    /// The file it was read from, relative to the mesh directory (empty when built in code).
+    pub source_file: String,
 }
 
 /// Meshes by key. The default library is empty (procedural objects only).
@@ -121,8 +123,21 @@ pub struct MeshPrepConfig {
     pub random_urdf_extent_m: f32,
     /// VHACD voxel resolution.
     pub vhacd_resolution: u32,
-    /// Share of the objects that go to the training split (the paper: 149/200).
+    /// Share of the objects that go to the training split (the paper: 149/200), taken within
+    /// each object kind so that the test split keeps simple shapes for the easy level.
     pub train_share: f32,
+    /// Most random URDF objects used (a fixed seeded choice), so that the 1000 generated
+    /// shapes do not crowd out the scanned YCB objects (the paper: 200 objects in all).
+    pub random_urdf_max: usize,
+    /// Most convex pieces per mesh (VHACD's `max_convex_hulls`).
+    pub max_convex_hulls: u32,
+    /// Most vertices kept per convex piece (farthest-point sampling): the physics engine's
+    /// support-point queries scan every vertex, so this bounds the cost of every contact.
+    pub max_hull_vertices: usize,
+    /// Objects whose thinnest side (at the set's scale) is under this are skipped (m): a
+    /// parallel-jaw hand whose fingertips reach 9.5 mm past the contact cannot close on a
+    /// shard lying flat on the floor (`docs/datasets.md`).
+    pub min_thickness_m: f32,
 }
 
 impl Default for MeshPrepConfig {
@@ -132,7 +147,48 @@ impl Default for MeshPrepConfig {
             random_urdf_extent_m: 0.08,
             vhacd_resolution: 64,
             train_share: 0.745,
+            random_urdf_max: 150,
+            min_thickness_m: 0.025,
+            max_convex_hulls: 12,
+            max_hull_vertices: 32,
         }
+    }
+}
+
+/// YCB objects of simple structure, by name: boxes, cylinders and balls (the easy level's pool).
+pub const YCB_SIMPLE: [(&str, crate::objects::ObjectKind); 18] = {
+    use crate::objects::ObjectKind::{Box, Cylinder, Sphere};
+    [
+        ("cracker_box", Box),
+        ("sugar_box", Box),
+        ("pudding_box", Box),
+        ("gelatin_box", Box),
+        ("potted_meat_can", Box),
+        ("wood_block", Box),
+        ("foam_brick", Box),
+        ("dice", Box),
+        ("rubiks_cube", Box),
+        ("master_chef_can", Cylinder),
+        ("tomato_soup_can", Cylinder),
+        ("tuna_fish_can", Cylinder),
+        ("mini_soccer_ball", Sphere),
+        ("softball", Sphere),
+        ("baseball", Sphere),
+        ("tennis_ball", Sphere),
+        ("racquetball", Sphere),
+        ("golf_ball", Sphere),
+    ]
+};
+
+/// The kind of a mesh object: a simple shape for the YCB objects of [`YCB_SIMPLE`], else mesh.
+pub fn mesh_kind(set: MeshSet, stem: &str) -> crate::objects::ObjectKind {
+    match set {
+        MeshSet::Ycb => YCB_SIMPLE
+            .iter()
+            .find(|(name, _)| stem.ends_with(name))
+            .map(|&(_, kind)| kind)
+            .unwrap_or(crate::objects::ObjectKind::Mesh),
+        MeshSet::RandomUrdf => crate::objects::ObjectKind::Mesh,
     }
 }
 
@@ -162,6 +218,68 @@ fn files_with_ext(dir: &std::path::Path, ext: &str, out: &mut Vec<std::path::Pat
         } else if p.extension().is_some_and(|e| e.eq_ignore_ascii_case(ext)) {
             out.push(p);
         }
+    }
+}
+
+/// At most `k` of `points`, spread by farthest-point sampling (the first is the point farthest
+/// from the centroid); all of them when there are at most `k`.
+pub fn farthest_points(points: &[[f32; 3]], k: usize) -> Vec<[f32; 3]> {
+    if points.len() <= k {
+        return points.to_vec();
+    }
+    let d2 = |a: &[f32; 3], b: &[f32; 3]| {
+        (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+    };
+    let n = points.len() as f32;
+    let c = points.iter().fold([0.0f32; 3], |c, p| {
+        [c[0] + p[0] / n, c[1] + p[1] / n, c[2] + p[2] / n]
+    });
+    let first = (0..points.len())
+        .max_by(|&a, &b| d2(&points[a], &c).total_cmp(&d2(&points[b], &c)))
+        .unwrap_or(0);
+    let mut nearest: Vec<f32> = points.iter().map(|p| d2(p, &points[first])).collect();
+    let mut out = vec![points[first]];
+    while out.len() < k {
+        let next = (0..points.len())
+            .max_by(|&a, &b| nearest[a].total_cmp(&nearest[b]))
+            .unwrap_or(0);
+        out.push(points[next]);
+        for (i, p) in points.iter().enumerate() {
+            nearest[i] = nearest[i].min(d2(p, &points[next]));
+        }
+    }
+    out
+}
+
+/// Rotates `v` about its centroid onto its principal axes (a right-handed frame, axes in
+/// ascending order of spread).
+pub fn align_to_principal_axes(v: &mut [[f32; 3]]) {
+    use nalgebra::{Matrix3, Vector3};
+    if v.len() < 4 {
+        return;
+    }
+    let n = v.len() as f64;
+    let mean = v.iter().fold(Vector3::<f64>::zeros(), |m, p| {
+        m + Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+    }) / n;
+    let cov = v.iter().fold(Matrix3::<f64>::zeros(), |c, p| {
+        let d = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) - mean;
+        c + d * d.transpose()
+    }) / n;
+    let eig = cov.symmetric_eigen();
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let mut axes = Matrix3::from_columns(&order.map(|i| eig.eigenvectors.column(i).into_owned()));
+    if !axes.iter().all(|x| x.is_finite()) {
+        return;
+    }
+    if axes.determinant() < 0.0 {
+        axes.set_column(2, &-axes.column(2));
+    }
+    for p in v.iter_mut() {
+        let d = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) - mean;
+        let r = axes.transpose() * d;
+        *p = [r.x as f32, r.y as f32, r.z as f32];
     }
 }
 
@@ -252,10 +370,19 @@ pub fn load_mesh_set_with(
             reason: "no mesh files found (run scripts/fetch_objects.sh)".into(),
         });
     }
+    if set == MeshSet::RandomUrdf {
+        // A fixed seeded choice of `random_urdf_max` objects among those thick enough.
+        files.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(
+            crate::objects::PROCEDURAL_LIBRARY_SEED ^ 0x5552_4446,
+        ));
+    }
     let cache_dir = dir.join("cache");
     let _ = std::fs::create_dir_all(&cache_dir);
     let mut keys = Vec::new();
     for path in files {
+        if set == MeshSet::RandomUrdf && keys.len() >= config.random_urdf_max {
+            break;
+        }
         let stem = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -268,7 +395,10 @@ pub fn load_mesh_set_with(
         if v.is_empty() || t.is_empty() {
             continue;
         }
-        // Centre on the bounding box and scale.
+        // Turn onto the principal axes (so that the bounding box's sides measure the object's
+        // thickness and widths even for a mesh stored diagonally), centre on the bounding box
+        // and scale.
+        align_to_principal_axes(&mut v);
         let mut lo = [f32::INFINITY; 3];
         let mut hi = [f32::NEG_INFINITY; 3];
         for p in &v {
@@ -286,6 +416,10 @@ pub fn load_mesh_set_with(
             MeshSet::Ycb => 1.0,
             MeshSet::RandomUrdf => config.random_urdf_extent_m / extent,
         };
+        let sides: [f32; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) * scale);
+        if sides.iter().copied().fold(f32::INFINITY, f32::min) < config.min_thickness_m {
+            continue;
+        }
         let c = [
             0.5 * (lo[0] + hi[0]),
             0.5 * (lo[1] + hi[1]),
@@ -299,9 +433,11 @@ pub fn load_mesh_set_with(
             ];
         }
         let cache = cache_dir.join(format!(
-            "{}-{stem}-r{}.json",
+            "{}-{stem}-pca-r{}-h{}-v{}.json",
             set.folder(),
-            config.vhacd_resolution
+            config.vhacd_resolution,
+            config.max_convex_hulls,
+            config.max_hull_vertices
         ));
         let parts: Vec<Vec<[f32; 3]>> = match std::fs::read_to_string(&cache)
             .ok()
@@ -312,6 +448,7 @@ pub fn load_mesh_set_with(
                 let verts: Vec<Vector> = v.iter().map(|p| Vector::new(p[0], p[1], p[2])).collect();
                 let params = parry3d::transformation::vhacd::VHACDParameters {
                     resolution: config.vhacd_resolution,
+                    max_convex_hulls: config.max_convex_hulls.max(1),
                     ..Default::default()
                 };
                 let decomp =
@@ -319,7 +456,10 @@ pub fn load_mesh_set_with(
                 let hulls: Vec<Vec<[f32; 3]>> = decomp
                     .compute_exact_convex_hulls(&verts, &t)
                     .into_iter()
-                    .map(|(pts, _)| pts.iter().map(|p| [p.x, p.y, p.z]).collect())
+                    .map(|(pts, _)| {
+                        let pts: Vec<[f32; 3]> = pts.iter().map(|p| [p.x, p.y, p.z]).collect();
+                        farthest_points(&pts, config.max_hull_vertices.max(4))
+                    })
                     .filter(|pts: &Vec<[f32; 3]>| pts.len() >= 4)
                     .collect();
                 if let Ok(text) = serde_json::to_string(&hulls) {
@@ -334,29 +474,43 @@ pub fn load_mesh_set_with(
         if parts.is_empty() {
             continue;
         }
+        let fit_extent_m = crate::objects::middle_of(sides);
         meshes.insert(
             key.clone(),
             MeshAsset {
                 vertices: v,
                 triangles: t,
                 convex_parts: parts,
+                source_file: path
+                    .strip_prefix(dir)
+                    .unwrap_or(&path)
+                    .to_string_lossy()
+                    .into_owned(),
             },
         );
-        keys.push(key);
+        keys.push((key, mesh_kind(set, &stem), fit_extent_m));
     }
-    keys.sort();
-    let mut order = keys.clone();
-    order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(
-        crate::objects::PROCEDURAL_LIBRARY_SEED ^ set as u64,
-    ));
-    let n_train = (config.train_share.clamp(0.0, 1.0) * keys.len() as f32).round() as usize;
-    let train: std::collections::BTreeSet<&String> = order[..n_train].iter().collect();
+    keys.sort_by(|a, b| a.0.cmp(&b.0));
+    // The split is drawn within each kind (a fixed seeded shuffle), so both splits keep some
+    // of every simple shape.
+    let mut train = std::collections::BTreeSet::new();
+    let mut kinds: Vec<ObjectKind> = keys.iter().map(|k| k.1).collect();
+    kinds.sort_by_key(|k| format!("{k:?}"));
+    kinds.dedup();
+    for kind in kinds {
+        let mut order: Vec<&String> = keys.iter().filter(|k| k.1 == kind).map(|k| &k.0).collect();
+        order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(
+            crate::objects::PROCEDURAL_LIBRARY_SEED ^ set as u64,
+        ));
+        let n_train = (config.train_share.clamp(0.0, 1.0) * order.len() as f32).round() as usize;
+        train.extend(order[..n_train].iter().map(|k| (*k).clone()));
+    }
     let objects = keys
         .iter()
-        .map(|key| LibraryObject {
+        .map(|(key, kind, fit_extent_m)| LibraryObject {
             spec: ObjectSpec {
                 name: key.clone(),
-                kind: ObjectKind::Mesh,
+                kind: *kind,
                 parts: vec![Part {
                     object_from_part: nalgebra::Isometry3::identity(),
                     primitive: Primitive::Mesh {
@@ -370,6 +524,7 @@ pub fn load_mesh_set_with(
             } else {
                 Split::Test
             },
+            fit_extent_m: *fit_extent_m,
         })
         .collect();
     Ok(crate::ObjectLibrary { objects })

@@ -103,9 +103,13 @@ impl ObjectKind {
         ObjectKind::Mug,
     ];
 
-    /// True for the "simple structure" kinds used by the easy test scenes (box, ball).
+    /// True for the "simple structure" kinds used by the easy test scenes (box, ball,
+    /// cylinder).
     pub fn is_simple(self) -> bool {
-        matches!(self, ObjectKind::Box | ObjectKind::Sphere)
+        matches!(
+            self,
+            ObjectKind::Box | ObjectKind::Sphere | ObjectKind::Cylinder
+        )
     }
 }
 
@@ -328,6 +332,30 @@ pub struct LibraryObject {
     pub spec: ObjectSpec,
     /// Its split.
     pub split: Split,
+    /// Second-smallest side of its bounding box at unit scale (m), 0 = unknown. Scaled to fit
+    /// the hand's opening ([`crate::SceneRecipe::fit_width_m`]), it lets the hand close across
+    /// the object whichever face it rests on: of the two smallest sides at least one lies
+    /// horizontal.
+    #[serde(default)]
+    pub fit_extent_m: f32,
+}
+
+/// Second-smallest side of the local bounding box of `spec` at unit scale (m), 0 if it cannot
+/// be built ([`LibraryObject::fit_extent_m`]).
+pub fn fit_extent(spec: &ObjectSpec, meshes: &MeshLibrary) -> f32 {
+    spec.build_shape(meshes)
+        .map(|shape| {
+            let aabb = shape.compute_local_aabb();
+            let d = aabb.maxs - aabb.mins;
+            middle_of([d.x, d.y, d.z])
+        })
+        .unwrap_or(0.0)
+}
+
+/// The middle value of three.
+pub fn middle_of(mut v: [f32; 3]) -> f32 {
+    v.sort_by(f32::total_cmp);
+    v[1]
 }
 
 /// The seed of the procedural library: fixed, so that the objects and their split never change.
@@ -362,6 +390,7 @@ impl ObjectLibrary {
                 );
                 let spec = procedural_object(kind, &format!("proc-{i:03}"), &mut rng);
                 LibraryObject {
+                    fit_extent_m: fit_extent(&spec, &MeshLibrary::default()),
                     spec,
                     split: if is_train[i] {
                         Split::Train
@@ -374,7 +403,7 @@ impl ObjectLibrary {
         Self { objects }
     }
 
-    /// The objects of one split, optionally only the simple kinds (box, sphere).
+    /// The objects of one split, optionally only the simple kinds (box, ball, cylinder).
     pub fn select(&self, split: Option<Split>, simple_only: bool) -> Vec<&LibraryObject> {
         self.objects
             .iter()
