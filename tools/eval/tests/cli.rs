@@ -15,6 +15,8 @@ fn args(out: &Path, scenes: u64, jobs: usize) -> EvalArgs {
         jobs: Some(jobs),
         out: out.to_owned(),
         config: None,
+        test_set: out.join("no-test-set"),
+        generate_scenes: true,
         objects: ObjectSource::Procedural,
         mesh_dir: None,
         report_only: false,

@@ -674,6 +674,23 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn a_card_made_for_another_gripper_file_is_refused_by_field() {
+        // The card fixture records the shipped models' hand (franka-15mm: opening 80 mm,
+        // approach depth 54 − 15 = 39 mm).
+        let c = card();
+        let file = |name: &str| psgrasp_geometry::grippers::named(name).unwrap();
+        c.gripper.check(&file("franka-15mm")).unwrap();
+        assert_eq!(
+            mismatch_field(c.gripper.check(&file("franka"))),
+            "gripper.approach_depth_m"
+        );
+        assert_eq!(
+            mismatch_field(c.gripper.check(&file("robotiq-2f85"))),
+            "gripper.max_opening_m"
+        );
+    }
+
+    #[test]
     fn inconsistent_cards_are_refused_by_field() {
         let cases: Vec<(&str, CardEdit)> = vec![
             ("unet.levels", Box::new(|c| c.unet.levels = 0)),

@@ -1,0 +1,137 @@
+//! The fixed test set (issue 17): `psgrasp testset` stores the scenes `psgrasp eval` would
+//! generate, `psgrasp eval --test-set` runs on them and refuses a set whose files no longer match
+//! their manifest.
+use psgrasp_datagen::cli::build_library;
+use psgrasp_datagen::{Difficulty, ObjectSource};
+use psgrasp_eval::cli::{run_testset, TestSetArgs};
+use psgrasp_eval::records::{RecordLine, RecordsFile};
+use psgrasp_eval::testset::generate_test_scene;
+use psgrasp_eval::{run_eval, EvalArgs, ProtocolConfig, TestSet};
+use std::path::Path;
+
+fn write_set(out: &Path) {
+    run_testset(&TestSetArgs {
+        out: out.to_owned(),
+        seed: 4,
+        scenes: 2,
+        config: None,
+        objects: ObjectSource::Procedural,
+        mesh_dir: None,
+        jobs: Some(2),
+    })
+    .unwrap();
+}
+
+fn eval_args(out: &Path, set: &Path, generate_scenes: bool, seed: u64) -> EvalArgs {
+    EvalArgs {
+        detectors: vec!["analytic".into()],
+        detectors_file: None,
+        models_dir: out.join("no-models"),
+        levels: vec![Difficulty::Easy],
+        scenes: 2,
+        seeds: vec![seed],
+        jobs: Some(2),
+        out: out.to_owned(),
+        config: None,
+        test_set: set.to_owned(),
+        generate_scenes,
+        objects: ObjectSource::Procedural,
+        mesh_dir: None,
+        report_only: false,
+        quiet: true,
+    }
+}
+
+/// Scene outcomes (objects, attempts, successes) of an evaluation directory, in order.
+fn scene_outcomes(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = RecordsFile::open(dir)
+        .unwrap()
+        .lines()
+        .iter()
+        .filter_map(|l| match l {
+            RecordLine::Scene { key, summary } => Some(format!(
+                "{} {} {} {} {:?}",
+                key.scene, summary.objects, summary.attempts, summary.successes, summary.end
+            )),
+            _ => None,
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn a_stored_test_set_holds_the_generated_scenes_and_eval_runs_on_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let set = dir.path().join("set");
+    write_set(&set);
+    let opened = TestSet::open(&set, &dir.path().join("no-meshes")).unwrap();
+    assert_eq!(opened.manifest.run_seed, 4);
+    assert_eq!(opened.manifest.levels.len(), 3);
+    // Each stored scene is the scene generated from the set's run seed.
+    let pool = build_library(ObjectSource::Procedural, dir.path()).unwrap();
+    let protocol = ProtocolConfig::default();
+    for level in [
+        Difficulty::Easy,
+        Difficulty::Medium,
+        Difficulty::Challenging,
+    ] {
+        assert_eq!(opened.scene_count(level), 2);
+        for i in 0..2 {
+            let generated = generate_test_scene(level, 4, i, &pool, &protocol.scenes).unwrap();
+            let stored = opened.scene(level, i).unwrap();
+            assert_eq!(
+                stored.description(),
+                &generated.scene,
+                "{level:?} scene {i}"
+            );
+        }
+    }
+    // The evaluation on the set meets the same scenes as one generating them from seed 4
+    // (with the same run seed for noise and sampling), and records which set it ran.
+    let on_set = dir.path().join("eval-set");
+    let generated = dir.path().join("eval-generated");
+    run_eval(&eval_args(&on_set, &set, false, 4)).unwrap();
+    run_eval(&eval_args(&generated, &set, true, 4)).unwrap();
+    assert_eq!(scene_outcomes(&on_set), scene_outcomes(&generated));
+    assert_eq!(scene_outcomes(&on_set).len(), 2);
+    let run = std::fs::read_to_string(on_set.join("run.json")).unwrap();
+    assert!(
+        run.contains("test set") && run.contains("manifest sha256"),
+        "{run}"
+    );
+}
+
+#[test]
+fn eval_refuses_a_test_set_that_does_not_match_its_manifest() {
+    let dir = tempfile::tempdir().unwrap();
+    let set = dir.path().join("set");
+    write_set(&set);
+    // One changed digit in a stored object pose.
+    let easy = set.join("easy.jsonl");
+    let text = std::fs::read_to_string(&easy).unwrap();
+    let pos = text.find("\"translation\":[").unwrap() + "\"translation\":[".len();
+    let mut changed = text.clone().into_bytes();
+    changed[pos + 3] = if changed[pos + 3] == b'1' { b'2' } else { b'1' };
+    std::fs::write(&easy, &changed).unwrap();
+    let err = run_eval(&eval_args(&dir.path().join("eval"), &set, false, 0)).unwrap_err();
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("easy.jsonl") && msg.contains("sha256"),
+        "{msg}"
+    );
+    // More scenes than the set holds, and a missing set, are refused with a clear message.
+    std::fs::write(&easy, &text).unwrap();
+    let mut args = eval_args(&dir.path().join("eval2"), &set, false, 0);
+    args.scenes = 3;
+    let msg = format!("{:#}", run_eval(&args).unwrap_err());
+    assert!(msg.contains("fewer than --scenes 3"), "{msg}");
+    let missing = eval_args(
+        &dir.path().join("eval3"),
+        &dir.path().join("none"),
+        false,
+        0,
+    );
+    let msg = format!("{:#}", run_eval(&missing).unwrap_err());
+    assert!(msg.contains("psgrasp testset"), "{msg}");
+}
