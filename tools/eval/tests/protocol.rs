@@ -156,7 +156,10 @@ fn oracle_executes_ground_truth_grasps_and_reports_what_is_left() {
     for r in &a.attempts {
         let t = r.target.as_ref().expect("target");
         assert!(test_names.contains(&t.name), "{t:?}");
-        assert!(t.kind == "box" || t.kind == "sphere", "{t:?}");
+        assert!(
+            ["box", "sphere", "cylinder"].contains(&t.kind.as_str()),
+            "{t:?}"
+        );
         if r.outcome == GraspOutcome::Success {
             assert!(t.tcp_distance_m < 0.0, "{t:?}");
         }
@@ -168,14 +171,17 @@ fn oracle_executes_ground_truth_grasps_and_reports_what_is_left() {
 
 #[test]
 fn objects_left_in_the_bin_are_described() {
-    // The analytic detector leaves objects behind in easy scene 1 of seed 0 (five balls and
-    // boxes): each is described with its size and its distance to the nearest side wall.
+    // The analytic detector leaves objects behind in easy scene 1 of seed 0 (boxes, balls and
+    // cylinders): each is described with its size and its distance to the nearest side wall.
     let r = run(Difficulty::Easy, 0, 1, &ProtocolConfig::default());
     let s = &r.summary;
     assert!(s.remaining > 0, "{s:?}");
     assert_eq!(s.remaining_objects.len(), s.remaining);
     for o in &s.remaining_objects {
-        assert!(o.kind == "box" || o.kind == "sphere", "{o:?}");
+        assert!(
+            ["box", "sphere", "cylinder"].contains(&o.kind.as_str()),
+            "{o:?}"
+        );
         if o.kind == "sphere" {
             // A ball's box is a cube.
             assert!((o.extent_m[0] - o.extent_m[2]).abs() < 1e-4, "{o:?}");
