@@ -168,7 +168,7 @@ impl GenerationConfig {
         [recipe.min_objects, recipe.max_objects] = self.object_counts.of(difficulty);
         recipe.scale_range = self.scale_range;
         recipe.fit_width_m = (self.fit_opening_share > 0.0)
-            .then(|| self.fit_opening_share * self.cell.gripper.max_opening_m);
+            .then_some(self.fit_opening_share * self.cell.gripper.max_opening_m);
         recipe
     }
 }

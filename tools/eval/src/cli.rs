@@ -19,7 +19,7 @@ enum SceneSource {
     /// Generated from the run seeds.
     Generated(ObjectPool),
     /// The fixed test set.
-    Fixed(TestSet),
+    Fixed(Box<TestSet>),
 }
 use crate::records::{write_atomic, RecordsFile, RunDescription, SceneKey, RECORDS_VERSION};
 use crate::report::summarize;
@@ -393,7 +393,7 @@ fn run_jobs(
                 args.scenes
             );
         }
-        SceneSource::Fixed(set)
+        SceneSource::Fixed(Box::new(set))
     };
     let jobs = args
         .jobs

@@ -91,9 +91,9 @@ fn the_gripper_file_sets_the_fingertip_depth_of_labels_selection_and_execution()
     // Selection and execution: a grasp from (nearly) straight down with its TCP 14.5 mm above
     // the floor reaches into the floor with the 15 mm fingertips and clears it, by more than
     // selection's 3 mm bin margin, with the real hand's 9.5 mm.
-    let bin = scene.bin().clone();
+    let bin = *scene.bin();
     let empty = Scene::new(SceneDescription {
-        bin: bin.clone(),
+        bin,
         objects: vec![],
     })
     .unwrap();
@@ -102,7 +102,7 @@ fn the_gripper_file_sets_the_fingertip_depth_of_labels_selection_and_execution()
     let cfg = SelectionConfig::default();
     for (p, floor_hit) in [(&real, false), (&old, true)] {
         let gripper = p.cell().gripper;
-        let checker = GraspChecker::new(&cfg, gripper, bin.clone(), None).unwrap();
+        let checker = GraspChecker::new(&cfg, gripper, bin, None).unwrap();
         let selected = checker.check_approach(&grasp, 0, 8);
         assert_eq!(
             selected.err(),
