@@ -135,3 +135,25 @@ fn eval_refuses_a_test_set_that_does_not_match_its_manifest() {
     let msg = format!("{:#}", run_eval(&missing).unwrap_err());
     assert!(msg.contains("psgrasp testset"), "{msg}");
 }
+
+#[test]
+fn the_committed_test_set_matches_its_manifest() {
+    // The repository's fixed test set (data/testset): every level file still has the sha256 the
+    // manifest records and holds its 100 scenes (the meshes are checked by `psgrasp eval` on a
+    // machine that has them).
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/testset");
+    let manifest: psgrasp_eval::TestSetManifest =
+        serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest.levels.len(), 3);
+    assert!(!manifest.meshes.is_empty());
+    for (name, level) in &manifest.levels {
+        let text = std::fs::read(dir.join(&level.file)).unwrap();
+        assert_eq!(
+            psgrasp_inference::learned::card::sha256_hex(&text),
+            level.sha256,
+            "{name}"
+        );
+        assert_eq!(level.scenes, 100, "{name}");
+        assert_eq!(text.iter().filter(|&&b| b == b'\n').count(), 100, "{name}");
+    }
+}
