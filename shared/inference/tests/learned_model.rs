@@ -169,6 +169,11 @@ fn tract_agrees_with_the_pytorch_reference() {
     agreement(RuntimeKind::Tract, None);
 }
 
+#[test]
+fn native_agrees_with_the_pytorch_reference() {
+    agreement(RuntimeKind::Native, None);
+}
+
 #[cfg(feature = "ort")]
 fn ort_library() -> PathBuf {
     std::env::var_os("ORT_DYLIB_PATH")
@@ -339,6 +344,11 @@ fn backend_end_to_end(kind: RuntimeKind, ort_library: Option<PathBuf>) {
 #[test]
 fn tract_backend_end_to_end() {
     backend_end_to_end(RuntimeKind::Tract, None);
+}
+
+#[test]
+fn native_backend_end_to_end() {
+    backend_end_to_end(RuntimeKind::Native, None);
 }
 
 #[cfg(feature = "ort")]

@@ -188,6 +188,7 @@ impl LearnedModel {
                 let _ = ort_library;
                 return Err(crate::onnx::ort_not_built());
             }
+            RuntimeKind::Native => Box::new(crate::native::NativeRuntime::new(files, threads)?),
         };
         Ok(Self {
             card: files.card.clone(),

@@ -10,6 +10,7 @@ pub struct OutputTensor {
 
 enum Storage {
     Tract(TValue),
+    Owned(Vec<f32>),
     #[cfg(feature = "ort")]
     Ort(ort::value::DynValue),
 }
@@ -33,6 +34,21 @@ impl OutputTensor {
         let t = Self {
             shape,
             storage: Storage::Tract(value),
+        };
+        t.checked_data(graph, name)?;
+        Ok(t)
+    }
+
+    /// Wraps values computed in Rust (the native runtime), checking their count.
+    pub(crate) fn from_vec(
+        shape: Vec<usize>,
+        data: Vec<f32>,
+        graph: &'static str,
+        name: &str,
+    ) -> Result<Self, ModelError> {
+        let t = Self {
+            shape,
+            storage: Storage::Owned(data),
         };
         t.checked_data(graph, name)?;
         Ok(t)
@@ -69,6 +85,7 @@ impl OutputTensor {
                 .try_as_plain_ram()
                 .and_then(|p| p.as_slice::<f32>())
                 .map_err(|e| e.to_string()),
+            Storage::Owned(v) => Ok(v.as_slice()),
             #[cfg(feature = "ort")]
             Storage::Ort(v) => v
                 .try_extract_tensor::<f32>()
