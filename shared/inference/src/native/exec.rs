@@ -23,6 +23,8 @@ pub struct OpStats {
     pub macs: u64,
     /// Multiply-adds of a dense pass.
     pub dense_macs: u64,
+    /// Wall time of the op.
+    pub time: std::time::Duration,
 }
 
 struct PackedTerm {
@@ -45,6 +47,12 @@ struct PackedOp {
     residual: Option<usize>,
     relu: bool,
     transpose: bool,
+    /// Whether the last term is a *field term*: the U-Net's skip connection from the encoder
+    /// into a decoder convolution, whose input is background far from the surface while the
+    /// up-sampled decoder input is not. Where the term's input window is all background, its
+    /// contribution is the same as on the all-zero input: stored once (with the bias) in a
+    /// field buffer and read instead of computed.
+    field: bool,
     nodes: Vec<String>,
 }
 
@@ -65,6 +73,14 @@ pub struct UnetExec {
     simd: Simd,
     pool: Option<Arc<rayon::ThreadPool>>,
     stats: Vec<OpStats>,
+    /// Whether to skip the background (off: every op computes its whole grid).
+    skip: bool,
+    /// Wall time of the input's conversion (spans and channels-last copy) in the last run.
+    input_time: std::time::Duration,
+    /// Per op with a field term: bias + the term's background contribution, laid out like the
+    /// output (computed during the first run, on the all-zero input).
+    fields: Vec<Option<Vec<f32>>>,
+    fields_ready: Vec<bool>,
 }
 
 impl std::fmt::Debug for UnetExec {
@@ -152,7 +168,70 @@ fn pack(plan: &UnetPlan, op_index: usize) -> PackedOp {
         residual: op.residual,
         relu: op.relu,
         transpose: op.is_transpose(),
+        field: op.terms.len() >= 2 && !op.is_transpose(),
         nodes: op.nodes.clone(),
+    }
+}
+
+/// What [`UnetExec::run_conv`] writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ConvMode {
+    /// The op's output.
+    Output,
+    /// The op's field: bias + the field term on the background.
+    Field,
+}
+
+/// Appends the segments of term `t` for the outputs from `(x, y, z)` on.
+#[allow(clippy::too_many_arguments)]
+fn push_segs(
+    segs: &mut Vec<Seg>,
+    t: &PackedTerm,
+    ptr: Shared,
+    info: BufInfo,
+    cp: usize,
+    x: usize,
+    y: usize,
+    z: usize,
+) {
+    let s = info.stride;
+    let (xi, yi, zi) = (x as isize, y as isize, z as isize);
+    // SAFETY (all `add`s): offsets of voxels inside the padded input buffer and of segments
+    // inside the packed weights.
+    match t.kind {
+        TermKind::K3 => {
+            for dx in 0..3 {
+                for dy in 0..3 {
+                    let v = voxel(info.dims, xi + dx - 1, yi + dy - 1, zi - 1);
+                    segs.push(Seg {
+                        a: unsafe { ptr.0.add(v * s) },
+                        k: t.k,
+                        tstride: s,
+                        w: unsafe { t.w.as_ptr().add(((dx * 3 + dy) as usize) * t.k * cp) },
+                    });
+                }
+            }
+        }
+        TermKind::K1 => segs.push(Seg {
+            a: unsafe { ptr.0.add(voxel(info.dims, xi, yi, zi) * s) },
+            k: t.k,
+            tstride: s,
+            w: t.w.as_ptr(),
+        }),
+        TermKind::Down2 => {
+            for a in 0..2 {
+                for b in 0..2 {
+                    let v = voxel(info.dims, 2 * xi + a, 2 * yi + b, 2 * zi);
+                    segs.push(Seg {
+                        a: unsafe { ptr.0.add(v * s) },
+                        k: t.k,
+                        tstride: 2 * s,
+                        w: unsafe { t.w.as_ptr().add(((a * 2 + b) as usize) * t.k * cp) },
+                    });
+                }
+            }
+        }
+        TermKind::Up2 => unreachable!("transposed terms run in run_transpose"),
     }
 }
 
@@ -160,9 +239,14 @@ impl UnetExec {
     /// Packs `plan`, allocates its buffers and computes every buffer's background (one dense
     /// run on zeros). With a `pool`, the kernels run on its threads.
     pub fn new(plan: UnetPlan, pool: Option<Arc<rayon::ThreadPool>>, simd: Simd) -> Self {
-        let ops = (0..plan.ops.len()).map(|i| pack(&plan, i)).collect();
+        let ops: Vec<PackedOp> = (0..plan.ops.len()).map(|i| pack(&plan, i)).collect();
+        let fields = ops
+            .iter()
+            .map(|op| op.field.then(|| vec![0.0; padded_len(&plan.bufs[op.out])]))
+            .collect();
         let bufs = plan.bufs.iter().map(|b| vec![0.0; padded_len(b)]).collect();
         let prev = plan.bufs.iter().map(|b| Spans::full(b.dims)).collect();
+        let n_ops = ops.len();
         let mut exec = Self {
             plan,
             ops,
@@ -171,6 +255,10 @@ impl UnetExec {
             simd,
             pool,
             stats: Vec::new(),
+            skip: true,
+            input_time: Default::default(),
+            fields,
+            fields_ready: vec![false; n_ops],
         };
         let b = exec.plan.bufs[0];
         let zeros = vec![0.0; b.channels * b.dims.iter().product::<usize>()];
@@ -188,19 +276,36 @@ impl UnetExec {
         &self.stats
     }
 
+    /// Wall time of the last run's input conversion.
+    pub fn input_time(&self) -> std::time::Duration {
+        self.input_time
+    }
+
+    /// Turns the background skip on (default) or off (every op computes its whole grid; for
+    /// measuring what the skip saves).
+    pub fn set_background_skip(&mut self, on: bool) {
+        self.skip = on;
+    }
+
     /// Runs the plan on a channel-major `[C, X, Y, Z]` input (length checked by the caller).
     pub fn run(&mut self, input: &[f32]) {
+        let start = std::time::Instant::now();
         let info = self.plan.bufs[0];
-        let changed = Spans::nonzero(info.dims, info.channels, input);
+        let mut changed = Spans::nonzero(info.dims, info.channels, input);
+        if !self.skip {
+            changed = Spans::full(info.dims);
+        }
         let write = changed.union(&self.prev[0]);
         self.write_input(input, &write);
         let mut cur: Vec<Option<Spans>> = vec![None; self.plan.bufs.len()];
         cur[0] = Some(changed.clone());
         self.prev[0] = changed;
+        self.input_time = start.elapsed();
         let mut stats = Vec::with_capacity(self.ops.len());
         for i in 0..self.ops.len() {
             let op = &self.ops[i];
             let mut changed: Option<Spans> = None;
+            let mut last_term = None;
             for t in &op.terms {
                 let s = cur[t.input].as_ref().expect("inputs run before");
                 let s = match t.kind {
@@ -211,8 +316,9 @@ impl UnetExec {
                 };
                 changed = Some(match changed {
                     Some(c) => c.union(&s),
-                    None => s,
+                    None => s.clone(),
                 });
+                last_term = Some(s);
             }
             let out_dims = self.plan.bufs[op.out].dims;
             let mut changed = changed.unwrap_or_else(|| Spans::empty(out_dims));
@@ -220,14 +326,30 @@ impl UnetExec {
                 changed = changed.union(cur[r].as_ref().expect("residual runs before"));
             }
             let compute = changed.union(&self.prev[op.out]);
+            let start = std::time::Instant::now();
             let per_voxel: usize = op.terms.iter().map(|t| t.macs).sum();
             let (macs, dense) = if op.transpose {
                 let coarse = compute.down2();
                 self.run_transpose(i, &coarse);
                 let n: usize = out_dims.iter().product::<usize>() / 8;
                 ((coarse.voxels() * per_voxel) as u64, (n * per_voxel) as u64)
+            } else if op.field {
+                let region = last_term.expect("a field op has terms");
+                let term_macs = op.terms.last().map_or(0, |t| t.macs);
+                if !self.fields_ready[i] {
+                    let full = Spans::full(out_dims);
+                    self.run_conv(i, &full, None, ConvMode::Field);
+                    self.fields_ready[i] = true;
+                }
+                self.run_conv(i, &compute, Some(&region), ConvMode::Output);
+                let n: usize = out_dims.iter().product();
+                let with_term = compute.intersection_voxels(&region);
+                (
+                    (compute.voxels() * (per_voxel - term_macs) + with_term * term_macs) as u64,
+                    (n * per_voxel) as u64,
+                )
             } else {
-                self.run_conv(i, &compute);
+                self.run_conv(i, &compute, None, ConvMode::Output);
                 let n: usize = out_dims.iter().product();
                 (
                     (compute.voxels() * per_voxel) as u64,
@@ -240,6 +362,7 @@ impl UnetExec {
                 changed_share: changed.share(),
                 macs,
                 dense_macs: dense,
+                time: start.elapsed(),
             });
             self.prev[op.out] = changed.clone();
             cur[op.out] = Some(changed);
@@ -276,14 +399,38 @@ impl UnetExec {
         }
     }
 
-    fn run_conv(&mut self, i: usize, compute: &Spans) {
+    /// Runs op `i` over `compute`. With a field term (see [`PackedOp::field`]), the term is
+    /// computed only inside `field_region`; elsewhere its background contribution, stored with
+    /// the bias in the op's field buffer, stands in for it. `mode` picks what is written.
+    fn run_conv(
+        &mut self,
+        i: usize,
+        compute: &Spans,
+        field_region: Option<&Spans>,
+        mode: ConvMode,
+    ) {
         let op = &self.ops[i];
         let out_info = self.plan.bufs[op.out];
         let dims = out_info.dims;
-        let out = Shared(self.bufs[op.out].as_mut_ptr());
-        let res = op
-            .residual
-            .map(|r| Shared(self.bufs[r].as_ptr() as *mut f32));
+        let out = match mode {
+            ConvMode::Output => Shared(self.bufs[op.out].as_mut_ptr()),
+            ConvMode::Field => Shared(
+                self.fields[i]
+                    .as_mut()
+                    .expect("an op with a field term has a field buffer")
+                    .as_mut_ptr(),
+            ),
+        };
+        let field = match (mode, &self.fields[i], field_region) {
+            (ConvMode::Output, Some(f), Some(r)) => Some((Shared(f.as_ptr() as *mut f32), r)),
+            _ => None,
+        };
+        let res = match mode {
+            ConvMode::Output => op
+                .residual
+                .map(|r| Shared(self.bufs[r].as_ptr() as *mut f32)),
+            ConvMode::Field => None,
+        };
         let inputs: Vec<(Shared, BufInfo)> = op
             .terms
             .iter()
@@ -294,73 +441,64 @@ impl UnetExec {
                 )
             })
             .collect();
+        // Terms taking part: all of them, or only the field term when computing the field.
+        let first_term = match mode {
+            ConvMode::Output => 0,
+            ConvMode::Field => op.terms.len() - 1,
+        };
         let simd = self.simd;
+        let relu = op.relu && mode == ConvMode::Output;
         let work = |x: usize| {
-            let (out, res) = (out, res);
+            let (out, res, field) = (out, res, field);
             let mut segs: Vec<Seg> = Vec::with_capacity(op.terms.len() * 9);
             for y in 0..dims[1] {
                 let Some((z0, z1)) = compute.col(x, y) else {
                     continue;
                 };
-                segs.clear();
-                for (t, &(ptr, info)) in op.terms.iter().zip(&inputs) {
-                    let s = info.stride;
-                    let (xi, yi, zi) = (x as isize, y as isize, z0 as isize);
-                    // SAFETY (all `add`s): offsets of voxels inside the padded input buffer.
-                    match t.kind {
-                        TermKind::K3 => {
-                            for dx in 0..3 {
-                                for dy in 0..3 {
-                                    let v = voxel(info.dims, xi + dx - 1, yi + dy - 1, zi - 1);
-                                    segs.push(Seg {
-                                        a: unsafe { ptr.0.add(v * s) },
-                                        k: t.k,
-                                        tstride: s,
-                                        w: unsafe {
-                                            t.w.as_ptr().add(((dx * 3 + dy) as usize) * t.k * op.cp)
-                                        },
-                                    });
-                                }
-                            }
-                        }
-                        TermKind::K1 => segs.push(Seg {
-                            a: unsafe { ptr.0.add(voxel(info.dims, xi, yi, zi) * s) },
-                            k: t.k,
-                            tstride: s,
-                            w: t.w.as_ptr(),
-                        }),
-                        TermKind::Down2 => {
-                            for a in 0..2 {
-                                for b in 0..2 {
-                                    let v = voxel(info.dims, 2 * xi + a, 2 * yi + b, 2 * zi);
-                                    segs.push(Seg {
-                                        a: unsafe { ptr.0.add(v * s) },
-                                        k: t.k,
-                                        tstride: 2 * s,
-                                        w: unsafe {
-                                            t.w.as_ptr().add(((a * 2 + b) as usize) * t.k * op.cp)
-                                        },
-                                    });
-                                }
-                            }
-                        }
-                        TermKind::Up2 => unreachable!("transposed terms run in run_transpose"),
-                    }
+                // Sub-ranges of z0..z1: (start, end, with the field term).
+                let mut ranges = [(z0, z1, true); 3];
+                let mut n_ranges = 1;
+                if let Some((_, region)) = field {
+                    let (t0, t1) = region.col(x, y).unwrap_or((z0, z0));
+                    let (a, b) = (t0.clamp(z0, z1), t1.clamp(z0, z1).max(t0.clamp(z0, z1)));
+                    ranges = [(z0, a, false), (a, b, true), (b, z1, false)];
+                    n_ranges = 3;
                 }
-                let o = voxel(dims, x as isize, y as isize, z0 as isize) * out_info.stride;
-                let job = Job {
-                    segs: &segs,
-                    wstride: op.cp,
-                    bias: op.bias.as_ptr(),
-                    res: res.map_or(std::ptr::null(), |r| unsafe { r.0.add(o) as *const f32 }),
-                    out: unsafe { out.0.add(o) },
-                    ostride: out_info.stride,
-                    relu: op.relu,
-                };
-                // SAFETY: segments, residual and output lie inside their padded buffers for
-                // z0..z1 (the halo covers the 3³ reads at the grid's faces); each x is
-                // written by one thread.
-                unsafe { kernels::run(simd, &job, z1 - z0) };
+                for &(za, zb, with_field) in &ranges[..n_ranges] {
+                    if za >= zb {
+                        continue;
+                    }
+                    segs.clear();
+                    let terms = op.terms.iter().zip(&inputs).skip(first_term);
+                    for (ti, (t, &(ptr, info))) in terms.enumerate() {
+                        let is_field_term = first_term + ti == op.terms.len() - 1;
+                        if field.is_some() && is_field_term && !with_field {
+                            continue;
+                        }
+                        push_segs(&mut segs, t, ptr, info, op.cp, x, y, za);
+                    }
+                    let o = voxel(dims, x as isize, y as isize, za as isize) * out_info.stride;
+                    let (bias, bias_stride) = match field {
+                        Some((f, _)) if !with_field => {
+                            (unsafe { f.0.add(o) as *const f32 }, out_info.stride)
+                        }
+                        _ => (op.bias.as_ptr(), 0),
+                    };
+                    let job = Job {
+                        segs: &segs,
+                        wstride: op.cp,
+                        bias,
+                        bias_stride,
+                        res: res.map_or(std::ptr::null(), |r| unsafe { r.0.add(o) as *const f32 }),
+                        out: unsafe { out.0.add(o) },
+                        ostride: out_info.stride,
+                        relu,
+                    };
+                    // SAFETY: segments, bias field, residual and output lie inside their padded
+                    // buffers for za..zb (the halo covers the 3³ reads at the grid's faces);
+                    // each x is written by one thread.
+                    unsafe { kernels::run(simd, &job, zb - za) };
+                }
             }
         };
         self.for_each_x(dims[0], work);
@@ -415,6 +553,7 @@ impl UnetExec {
                         segs: &segs,
                         wstride: op.cp,
                         bias: op.bias.as_ptr(),
+                        bias_stride: 0,
                         res: res.map_or(std::ptr::null(), |r| unsafe { r.0.add(o) as *const f32 }),
                         out: unsafe { out.0.add(o) },
                         ostride: 2 * out_info.stride,
@@ -429,31 +568,38 @@ impl UnetExec {
         self.for_each_x(cdims[0], work);
     }
 
-    /// Output buffer `b` as a channel-major `[C, X, Y, Z]` vector.
-    pub fn channel_major(&self, b: usize) -> Vec<f32> {
+    /// Where buffer `b` differs from its background after the last run.
+    pub fn changed(&self, b: usize) -> &Spans {
+        &self.prev[b]
+    }
+
+    /// Copies buffer `b` over `spans` into `dst`, a channel-major `[C, X, Y, Z]` grid.
+    pub fn write_channel_major(&self, b: usize, spans: &Spans, dst: &mut [f32]) {
         let info = self.plan.bufs[b];
         let [nx, ny, nz] = info.dims;
         let plane = nx * ny * nz;
-        let c = info.channels;
-        let mut out = vec![0.0f32; c * plane];
-        let dst = Shared(out.as_mut_ptr());
+        let (c, stride) = (info.channels, info.stride);
+        assert_eq!(dst.len(), c * plane, "channel-major buffer size");
+        let dst = Shared(dst.as_mut_ptr());
         let src = &self.bufs[b];
         let work = |x: usize| {
             let dst = dst;
             for y in 0..ny {
-                let base = voxel(info.dims, x as isize, y as isize, 0) * info.stride;
+                let Some((lo, hi)) = spans.col(x, y) else {
+                    continue;
+                };
+                let base = voxel(info.dims, x as isize, y as isize, 0) * stride;
                 let col = (x * ny + y) * nz;
-                for ch in 0..c {
-                    // SAFETY: column (x, y) of channel ch; each x is written by one thread.
-                    let row =
-                        unsafe { std::slice::from_raw_parts_mut(dst.0.add(ch * plane + col), nz) };
-                    for (z, v) in row.iter_mut().enumerate() {
-                        *v = src[base + z * info.stride + ch];
+                for z in lo..hi {
+                    let v = &src[base + z * stride..base + z * stride + c];
+                    for (ch, &value) in v.iter().enumerate() {
+                        // SAFETY: channel ch, voxel (x, y, z) of the `c × plane` destination;
+                        // each x is written by one thread.
+                        unsafe { *dst.0.add(ch * plane + col + z) = value };
                     }
                 }
             }
         };
         self.for_each_x(nx, work);
-        out
     }
 }

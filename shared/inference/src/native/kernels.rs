@@ -5,7 +5,7 @@
 //! channels `c`, each segment with its own input step `tstride`,
 //!
 //! ```text
-//! out[t·ostride + c] = act(bias[c] + Σ_seg Σ_k a_seg[t·tstride + k] · w_seg[k·wstride + c] + res[t·ostride + c])
+//! out[t·ostride + c] = act(bias[t·bias_stride + c] + Σ_seg Σ_k a_seg[t·tstride + k] · w_seg[k·wstride + c] + res[t·ostride + c])
 //! ```
 //!
 //! In a channels-last grid the `3·C` inputs of one kernel row `(dx, dy)` for an output at `z` are
@@ -13,8 +13,8 @@
 //! output, a 1³ one 1 segment of `K = C`, a 2³ stride-2 one 4 segments of `K = 2C` with
 //! `tstride = 2C`. The kernel keeps the `T × M` accumulators in registers, broadcasts one input
 //! value per `k` and `t` and multiplies it with `M` weight vectors (AVX2 + FMA through `pulp`'s
-//! `V3`; a portable scalar path otherwise). Register blocking: `T = 12` for 8 channels, 6 for 16,
-//! 3 for 32 (wider outputs are done in chunks of 32).
+//! `V3`; a portable scalar path otherwise). Register blocking: `T = 12` for 8 channels, else
+//! `T = 6` outputs × 16 channels (wider outputs in chunks of 16).
 use pulp::x86::V3;
 use std::arch::x86_64::__m256;
 
@@ -38,8 +38,10 @@ pub struct Job<'a> {
     pub segs: &'a [Seg],
     /// Weight row length (output channels, padded to a multiple of 8).
     pub wstride: usize,
-    /// `wstride` biases.
+    /// `wstride` biases for the first output.
     pub bias: *const f32,
+    /// Bias step from one output to the next: 0 (one bias per channel) or a per-voxel field.
+    pub bias_stride: usize,
     /// Residual for the first output (null: none), `ostride` apart like the outputs.
     pub res: *const f32,
     /// First output.
@@ -77,12 +79,13 @@ impl Simd {
     }
 }
 
-/// Output channel vectors per register tile and outputs per tile for `remaining` channels.
+/// Output channel vectors per register tile and outputs per tile for `remaining` channels
+/// (12 accumulators; wider outputs in chunks of 16 keep a chunk's weights small enough to stay
+/// in the L1/L2 cache while the tiles stream past them).
 fn blocking(remaining: usize) -> (usize, usize) {
     match remaining {
         8 => (1, 12),
-        16 | 24 => (2, 6),
-        _ => (4, 3),
+        _ => (2, 6),
     }
 }
 
@@ -129,8 +132,7 @@ macro_rules! tiles {
 unsafe fn dispatch(v3: V3, m: usize, t: usize, job: &Job<'_>, t0: usize, c0: usize) {
     tiles!(v3, m, t, job, t0, c0;
         1 => [1 2 3 4 5 6 7 8 9 10 11 12],
-        2 => [1 2 3 4 5 6],
-        4 => [1 2 3])
+        2 => [1 2 3 4 5 6])
 }
 
 #[inline(always)]
@@ -152,8 +154,12 @@ unsafe fn tile<const T: usize, const M: usize>(s: V3, job: &Job<'_>, t0: usize, 
         let mut acc = [[s.avx._mm256_setzero_ps(); M]; T];
         for m in 0..M {
             let b = load(job.bias.add(c0 + 8 * m));
-            for row in acc.iter_mut() {
-                row[m] = b;
+            for (t, row) in acc.iter_mut().enumerate() {
+                row[m] = if job.bias_stride == 0 {
+                    b
+                } else {
+                    load(job.bias.add((t0 + t) * job.bias_stride + c0 + 8 * m))
+                };
             }
         }
         for sg in job.segs {
@@ -199,7 +205,10 @@ unsafe fn scalar(job: &Job<'_>, count: usize) {
     let mut acc = vec![0.0f32; n];
     for t in 0..count {
         unsafe {
-            acc.copy_from_slice(std::slice::from_raw_parts(job.bias, n));
+            acc.copy_from_slice(std::slice::from_raw_parts(
+                job.bias.add(t * job.bias_stride),
+                n,
+            ));
             for sg in job.segs {
                 let a = sg.a.add(t * sg.tstride);
                 for k in 0..sg.k {
@@ -248,14 +257,14 @@ mod tests {
         tstride: usize,
         n: usize,
         count: usize,
-        bias: &[f32],
+        bias: (&[f32], usize),
         res: Option<&[f32]>,
         relu: bool,
     ) -> Vec<f32> {
         let mut out = vec![0.0; count * n];
         for t in 0..count {
             for c in 0..n {
-                let mut v = bias[c] as f64;
+                let mut v = bias.0[t * bias.1 + c] as f64;
                 for (a, w) in segs {
                     for kk in 0..k {
                         v += a[t * tstride + kk] as f64 * w[kk * n + c] as f64;
@@ -280,7 +289,9 @@ mod tests {
                         let segs: Vec<(Vec<f32>, Vec<f32>)> = (0..3)
                             .map(|i| (noise(count * tstride + k, 10 + i), noise(k * n, 20 + i)))
                             .collect();
-                        let bias = noise(n, 1);
+                        // With a residual, also a per-output bias field.
+                        let bias_stride = if with_res { n } else { 0 };
+                        let bias = noise(n + count * bias_stride, 1);
                         let res = noise(count * n, 2);
                         let want = naive(
                             &segs,
@@ -288,7 +299,7 @@ mod tests {
                             tstride,
                             n,
                             count,
-                            &bias,
+                            (&bias, bias_stride),
                             with_res.then_some(&res[..]),
                             relu,
                         );
@@ -306,6 +317,7 @@ mod tests {
                             segs: &ptrs,
                             wstride: n,
                             bias: bias.as_ptr(),
+                            bias_stride,
                             res: if with_res {
                                 res.as_ptr()
                             } else {

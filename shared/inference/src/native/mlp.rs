@@ -506,6 +506,7 @@ impl MlpPlan {
                 segs: &segs,
                 wstride: l.np,
                 bias: l.b.as_ptr(),
+                bias_stride: 0,
                 res: std::ptr::null(),
                 out: s.act[dst].as_mut_ptr(),
                 ostride: l.np,

@@ -34,6 +34,7 @@ use kernels::Simd;
 use mlp::{MlpPlan, Scratch};
 use plan::UnetPlan;
 use rayon::prelude::*;
+use spans::Spans;
 use std::sync::Arc;
 
 const RUNTIME: &str = "native";
@@ -91,6 +92,13 @@ pub struct NativeRuntime {
     card: ModelCard,
     simd: Simd,
     pool: Option<Arc<rayon::ThreadPool>>,
+    /// Wall time of the last U-Net run's output conversion (channels-last → channel-major).
+    output_time: std::time::Duration,
+    /// The U-Net's outputs, channel-major, handed out shared; updated in place where they
+    /// changed (a copy is made only while the caller still holds the previous frame's).
+    outputs: Vec<Arc<Vec<f32>>>,
+    /// Per output: where it holds values other than its background.
+    outputs_changed: Vec<Spans>,
 }
 
 impl std::fmt::Debug for NativeRuntime {
@@ -136,18 +144,47 @@ impl NativeRuntime {
             || Ok(UnetExec::new(plan, pool.clone(), simd)),
             panic_err("unet", true),
         )?;
+        let plan = unet.plan();
+        let outputs = plan
+            .outputs
+            .iter()
+            .map(|&b| {
+                let info = plan.bufs[b];
+                let mut v = vec![0.0; info.channels * info.dims.iter().product::<usize>()];
+                unet.write_channel_major(b, &Spans::full(info.dims), &mut v);
+                Arc::new(v)
+            })
+            .collect();
+        let outputs_changed = plan
+            .outputs
+            .iter()
+            .map(|&b| Spans::empty(plan.bufs[b].dims))
+            .collect();
         Ok(Self {
             unet,
             mlp,
             card,
             simd,
             pool,
+            output_time: Default::default(),
+            outputs,
+            outputs_changed,
         })
     }
 
     /// Per-op figures of the last U-Net run (changed share, multiply-adds computed and dense).
     pub fn unet_stats(&self) -> &[OpStats] {
         self.unet.stats()
+    }
+
+    /// Wall times of the last U-Net run outside the ops: input conversion, output conversion.
+    pub fn unet_io_times(&self) -> (std::time::Duration, std::time::Duration) {
+        (self.unet.input_time(), self.output_time)
+    }
+
+    /// Turns the U-Net's background skip on (default) or off (for measurements).
+    pub fn set_background_skip(&mut self, on: bool) {
+        self.unet.set_background_skip(on);
     }
 
     /// Multiply-adds per MLP row.
@@ -160,18 +197,27 @@ impl NativeRuntime {
         self.simd.name()
     }
 
-    fn unet_tensors(&self) -> Result<Vec<OutputTensor>, ModelError> {
+    /// Brings the channel-major outputs up to date with the last run and wraps them.
+    fn unet_tensors(&mut self) -> Result<Vec<OutputTensor>, ModelError> {
         let names = expected_unet_names(&self.card);
         let plan = self.unet.plan();
-        plan.outputs
-            .iter()
-            .zip(&names)
-            .map(|(&b, name)| {
-                let info = plan.bufs[b];
-                let shape = vec![1, info.channels, info.dims[0], info.dims[1], info.dims[2]];
-                OutputTensor::from_vec(shape, self.unet.channel_major(b), "unet", name)
-            })
-            .collect()
+        let mut tensors = Vec::with_capacity(plan.outputs.len());
+        for (i, (&b, name)) in plan.outputs.iter().zip(&names).enumerate() {
+            let info = plan.bufs[b];
+            let changed = self.unet.changed(b);
+            let region = changed.union(&self.outputs_changed[i]);
+            let data = Arc::make_mut(&mut self.outputs[i]);
+            self.unet.write_channel_major(b, &region, data);
+            self.outputs_changed[i] = changed.clone();
+            let shape = vec![1, info.channels, info.dims[0], info.dims[1], info.dims[2]];
+            tensors.push(OutputTensor::from_shared(
+                shape,
+                self.outputs[i].clone(),
+                "unet",
+                name,
+            )?);
+        }
+        Ok(tensors)
     }
 }
 
@@ -195,7 +241,10 @@ impl GraphRuntime for NativeRuntime {
         let tensors = no_panic(
             || {
                 self.unet.run(normals);
-                self.unet_tensors()
+                let start = std::time::Instant::now();
+                let t = self.unet_tensors();
+                self.output_time = start.elapsed();
+                t
             },
             panic_err("unet", false),
         )?;

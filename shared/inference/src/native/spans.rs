@@ -84,6 +84,15 @@ impl Spans {
         self.voxels() as f64 / (self.dims.iter().product::<usize>().max(1)) as f64
     }
 
+    /// Voxels covered by both.
+    pub fn intersection_voxels(&self, other: &Spans) -> usize {
+        self.cols
+            .iter()
+            .zip(&other.cols)
+            .map(|(&(a0, a1), &(b0, b1))| a1.min(b1).saturating_sub(a0.max(b0)) as usize)
+            .sum()
+    }
+
     /// Hull of both, column by column.
     pub fn union(&self, other: &Spans) -> Spans {
         debug_assert_eq!(self.dims, other.dims);
