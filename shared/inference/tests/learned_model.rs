@@ -468,6 +468,11 @@ fn truncated_or_garbage_onnx_is_an_error_not_a_panic() {
     truncated_or_garbage(RuntimeKind::Tract);
 }
 
+#[test]
+fn truncated_or_garbage_onnx_is_an_error_not_a_panic_with_native() {
+    truncated_or_garbage(RuntimeKind::Native);
+}
+
 #[cfg(feature = "ort")]
 #[test]
 fn truncated_or_garbage_onnx_is_an_error_not_a_panic_with_ort() {

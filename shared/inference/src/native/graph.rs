@@ -17,6 +17,9 @@ pub struct Unsupported {
     pub op: String,
     /// What is not supported.
     pub reason: String,
+    /// Whether the graph's interface (input or output names) is what differs, rather than an
+    /// operator.
+    pub interface: bool,
 }
 
 impl std::fmt::Display for Unsupported {
@@ -41,6 +44,15 @@ pub fn graph_error(reason: impl Into<String>) -> Unsupported {
         node: String::new(),
         op: String::new(),
         reason: reason.into(),
+        interface: false,
+    }
+}
+
+/// The graph's inputs or outputs are not the expected ones.
+pub fn interface_error(reason: impl Into<String>) -> Unsupported {
+    Unsupported {
+        interface: true,
+        ..graph_error(reason)
     }
 }
 
@@ -109,6 +121,7 @@ impl Node {
             node: self.name.clone(),
             op: self.op.clone(),
             reason: reason.into(),
+            interface: false,
         }
     }
 
@@ -214,6 +227,7 @@ impl Graph {
                     node: name,
                     op: n.op_type.clone(),
                     reason: format!("operator domain `{}`", n.domain),
+                    interface: false,
                 });
             }
             let node = Node {
@@ -310,6 +324,7 @@ fn decode_tensor(t: &pb::TensorProto, owner: &str) -> Result<Const, Unsupported>
         node: owner.to_string(),
         op: "constant".into(),
         reason,
+        interface: false,
     };
     if t.data_location == Some(pb::tensor_proto::DataLocation::External as i32) {
         return Err(refuse("external tensor data".into()));

@@ -10,7 +10,8 @@
 //! * [`spans`] and [`exec`]: the background skip — the input is zero in free space, so every
 //!   layer equals its all-zero-input output (computed at load) wherever its receptive field
 //!   sees only zeros; each layer computes just the column intervals that may differ.
-//! * [`mlp`]: the MLP head as blocked matrix products with the element-wise tail.
+//! * [`mlp`]: the MLP head as blocked matrix products (`matrixmultiply`) with the element-wise
+//!   tail.
 //!
 //! Results equal the ONNX graph up to float rounding (tested against tract within 1e-4 on the
 //! shipped model and the fixture model). Both graphs use one private thread pool.
@@ -40,10 +41,19 @@ use std::sync::Arc;
 const RUNTIME: &str = "native";
 
 fn load_err(graph: &'static str) -> impl Fn(Unsupported) -> ModelError {
-    move |e| ModelError::Graph {
-        graph,
-        runtime: RUNTIME,
-        source: Box::new(e),
+    move |e| {
+        if e.interface {
+            ModelError::GraphInterface {
+                graph,
+                reason: e.reason,
+            }
+        } else {
+            ModelError::Graph {
+                graph,
+                runtime: RUNTIME,
+                source: Box::new(e),
+            }
+        }
     }
 }
 
@@ -266,7 +276,6 @@ impl GraphRuntime for NativeRuntime {
             });
         }
         let mlp = &self.mlp;
-        let simd = self.simd;
         let cols: Vec<usize> = (0..MLP_OUTPUTS.len()).map(|i| mlp.output_cols(i)).collect();
         let mut outputs: Vec<Vec<f32>> = cols.iter().map(|&c| vec![0.0; n * c]).collect();
         no_panic(
@@ -283,7 +292,7 @@ impl GraphRuntime for NativeRuntime {
                 let work = |s: &mut Scratch, (i, mut outs): (usize, Vec<&mut [f32]>)| {
                     let rows = block.min(n - i * block);
                     let x = &features[i * block * f..(i * block + rows) * f];
-                    mlp.run_block(simd, x, rows, s, &mut outs);
+                    mlp.run_block(x, rows, s, &mut outs);
                 };
                 match &self.pool {
                     Some(pool) => pool.install(|| {

@@ -155,8 +155,8 @@ impl UnetPlan {
             )));
         }
         if graph.inputs != [input] {
-            return Err(err(format!(
-                "graph inputs are {:?}, expected [{input:?}]",
+            return Err(super::graph::interface_error(format!(
+                "inputs are {:?}, expected [{input:?}]",
                 graph.inputs
             )));
         }
@@ -183,7 +183,9 @@ impl UnetPlan {
                 .iter()
                 .find(|(_, declared)| declared == name)
                 .map(|(r, _)| r)
-                .ok_or_else(|| err(format!("no graph output named `{name}`")))?;
+                .ok_or_else(|| {
+                    super::graph::interface_error(format!("no output named `{name}`"))
+                })?;
             match b.vals.get(resolved) {
                 Some(Val::Buf(id)) if *id != 0 => out_bufs.push(*id),
                 _ => {
