@@ -132,6 +132,26 @@ fn fixture_model_equals_tract_frame_after_frame() {
         for (i, g) in frames.iter().enumerate() {
             compare_unet(&format!("{tag} frame {i}"), &mut native, &mut tract, g);
         }
+        // Outputs still held while the next frame runs stay those of their frame (the runtime
+        // updates its shared output grids in place only when nobody else holds them).
+        let held = native.run_unet(&frames[1]).unwrap();
+        let logits = held.label_logits.data().to_vec();
+        let enc0 = held.features[0].data().to_vec();
+        compare_unet(
+            &format!("{tag} while held"),
+            &mut native,
+            &mut tract,
+            &frames[2],
+        );
+        assert_eq!(held.label_logits.data(), &logits[..]);
+        assert_eq!(held.features[0].data(), &enc0[..]);
+        drop(held);
+        compare_unet(
+            &format!("{tag} after held"),
+            &mut native,
+            &mut tract,
+            &frames[1],
+        );
         let f = files.card.feature_dim();
         for (n, seed) in [(1usize, 7u64), (95, 8), (96, 9), (250, 10)] {
             compare_mlp(

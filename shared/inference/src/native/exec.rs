@@ -63,6 +63,13 @@ struct Shared(*mut f32);
 unsafe impl Send for Shared {}
 unsafe impl Sync for Shared {}
 
+impl Shared {
+    /// The pointer (a method, so closures capture the whole `Shared`, which is `Send`).
+    fn ptr(self) -> *mut f32 {
+        self.0
+    }
+}
+
 /// The U-Net plan with its buffers.
 pub struct UnetExec {
     plan: UnetPlan,
@@ -81,6 +88,16 @@ pub struct UnetExec {
     /// output (computed during the first run, on the all-zero input).
     fields: Vec<Option<Vec<f32>>>,
     fields_ready: Vec<bool>,
+    /// The plan's outputs, channel-major, handed out shared and updated in place where they
+    /// changed (a copy is made only while a caller still holds the previous frame's).
+    outputs_cm: Vec<Arc<Vec<f32>>>,
+    /// Per output: where it holds values other than its background.
+    outputs_changed: Vec<Spans>,
+    /// Per op: the output it writes straight into, channel-major (an output no other op reads,
+    /// e.g. the head's label logits), skipping its channels-last buffer.
+    direct: Vec<Option<usize>>,
+    /// Wall time of the last run's output conversion.
+    output_time: std::time::Duration,
 }
 
 impl std::fmt::Debug for UnetExec {
@@ -247,6 +264,34 @@ impl UnetExec {
         let bufs = plan.bufs.iter().map(|b| vec![0.0; padded_len(b)]).collect();
         let prev = plan.bufs.iter().map(|b| Spans::full(b.dims)).collect();
         let n_ops = ops.len();
+        let read = |b: usize| {
+            ops.iter()
+                .any(|op| op.residual == Some(b) || op.terms.iter().any(|t| t.input == b))
+        };
+        let direct = ops
+            .iter()
+            .map(|op| {
+                let j = plan.outputs.iter().position(|&o| o == op.out)?;
+                let plain = !op.transpose && !op.field && op.residual.is_none();
+                (plain && !read(op.out)).then_some(j)
+            })
+            .collect();
+        let outputs_cm = plan
+            .outputs
+            .iter()
+            .map(|&b| {
+                let info = plan.bufs[b];
+                Arc::new(vec![
+                    0.0;
+                    info.channels * info.dims.iter().product::<usize>()
+                ])
+            })
+            .collect();
+        let outputs_changed = plan
+            .outputs
+            .iter()
+            .map(|&b| Spans::full(plan.bufs[b].dims))
+            .collect();
         let mut exec = Self {
             plan,
             ops,
@@ -259,6 +304,10 @@ impl UnetExec {
             input_time: Default::default(),
             fields,
             fields_ready: vec![false; n_ops],
+            outputs_cm,
+            outputs_changed,
+            direct,
+            output_time: Default::default(),
         };
         let b = exec.plan.bufs[0];
         let zeros = vec![0.0; b.channels * b.dims.iter().product::<usize>()];
@@ -368,6 +417,30 @@ impl UnetExec {
             cur[op.out] = Some(changed);
         }
         self.stats = stats;
+        let start = std::time::Instant::now();
+        for j in 0..self.outputs_cm.len() {
+            if self.direct.contains(&Some(j)) {
+                continue;
+            }
+            let b = self.plan.outputs[j];
+            let region = self.prev[b].union(&self.outputs_changed[j]);
+            let mut data = std::mem::take(&mut self.outputs_cm[j]);
+            let dst: &mut Vec<f32> = Arc::make_mut(&mut data);
+            self.write_channel_major(b, &region, dst);
+            self.outputs_cm[j] = data;
+            self.outputs_changed[j] = self.prev[b].clone();
+        }
+        self.output_time = start.elapsed();
+    }
+
+    /// The plan's outputs after the last run, channel-major `[C, X, Y, Z]`, in plan order.
+    pub fn outputs(&self) -> &[Arc<Vec<f32>>] {
+        &self.outputs_cm
+    }
+
+    /// Wall time of the last run's output conversion.
+    pub fn output_time(&self) -> std::time::Duration {
+        self.output_time
     }
 
     /// Copies the channel-major input into buffer 0 over `spans`.
@@ -412,7 +485,16 @@ impl UnetExec {
         let op = &self.ops[i];
         let out_info = self.plan.bufs[op.out];
         let dims = out_info.dims;
+        let direct = match mode {
+            ConvMode::Output => self.direct[i],
+            ConvMode::Field => None,
+        };
+        let plane = dims.iter().product::<usize>();
         let out = match mode {
+            ConvMode::Output if direct.is_some() => {
+                let j = direct.expect("checked");
+                Shared(Arc::make_mut(&mut self.outputs_cm[j]).as_mut_ptr())
+            }
             ConvMode::Output => Shared(self.bufs[op.out].as_mut_ptr()),
             ConvMode::Field => Shared(
                 self.fields[i]
@@ -448,6 +530,7 @@ impl UnetExec {
         };
         let simd = self.simd;
         let relu = op.relu && mode == ConvMode::Output;
+        let op_cout = out_info.channels;
         let work = |x: usize| {
             let (out, res, field) = (out, res, field);
             let mut segs: Vec<Seg> = Vec::with_capacity(op.terms.len() * 9);
@@ -478,6 +561,10 @@ impl UnetExec {
                         push_segs(&mut segs, t, ptr, info, op.cp, x, y, za);
                     }
                     let o = voxel(dims, x as isize, y as isize, za as isize) * out_info.stride;
+                    let (o_out, ostride, out_plane) = match direct {
+                        Some(_) => ((x * dims[1] + y) * dims[2] + za, 1, plane),
+                        None => (o, out_info.stride, 0),
+                    };
                     let (bias, bias_stride) = match field {
                         Some((f, _)) if !with_field => {
                             (unsafe { f.0.add(o) as *const f32 }, out_info.stride)
@@ -490,8 +577,10 @@ impl UnetExec {
                         bias,
                         bias_stride,
                         res: res.map_or(std::ptr::null(), |r| unsafe { r.0.add(o) as *const f32 }),
-                        out: unsafe { out.0.add(o) },
-                        ostride: out_info.stride,
+                        out: unsafe { out.0.add(o_out) },
+                        ostride,
+                        out_plane,
+                        out_channels: op_cout,
                         relu,
                     };
                     // SAFETY: segments, bias field, residual and output lie inside their padded
@@ -557,6 +646,8 @@ impl UnetExec {
                         res: res.map_or(std::ptr::null(), |r| unsafe { r.0.add(o) as *const f32 }),
                         out: unsafe { out.0.add(o) },
                         ostride: 2 * out_info.stride,
+                        out_plane: 0,
+                        out_channels: 0,
                         relu: op.relu,
                     };
                     // SAFETY: fine voxels 2·z + c for z in z0..z1 lie inside the output grid;
@@ -568,13 +659,8 @@ impl UnetExec {
         self.for_each_x(cdims[0], work);
     }
 
-    /// Where buffer `b` differs from its background after the last run.
-    pub fn changed(&self, b: usize) -> &Spans {
-        &self.prev[b]
-    }
-
     /// Copies buffer `b` over `spans` into `dst`, a channel-major `[C, X, Y, Z]` grid.
-    pub fn write_channel_major(&self, b: usize, spans: &Spans, dst: &mut [f32]) {
+    fn write_channel_major(&self, b: usize, spans: &Spans, dst: &mut [f32]) {
         let info = self.plan.bufs[b];
         let [nx, ny, nz] = info.dims;
         let plane = nx * ny * nz;
@@ -583,19 +669,25 @@ impl UnetExec {
         let dst = Shared(dst.as_mut_ptr());
         let src = &self.bufs[b];
         let work = |x: usize| {
-            let dst = dst;
             for y in 0..ny {
                 let Some((lo, hi)) = spans.col(x, y) else {
                     continue;
                 };
                 let base = voxel(info.dims, x as isize, y as isize, 0) * stride;
                 let col = (x * ny + y) * nz;
-                for z in lo..hi {
-                    let v = &src[base + z * stride..base + z * stride + c];
-                    for (ch, &value) in v.iter().enumerate() {
-                        // SAFETY: channel ch, voxel (x, y, z) of the `c × plane` destination;
-                        // each x is written by one thread.
-                        unsafe { *dst.0.add(ch * plane + col + z) = value };
+                assert!(base + hi * stride <= src.len());
+                // Channel by channel: each channel's z-run is written contiguously (writing all
+                // channels of one voxel at a time hits planes a power of two apart, which share
+                // one L1 set).
+                for ch in 0..c {
+                    for z in lo..hi {
+                        // SAFETY: voxel z of the column lies in `src` (asserted above); channel
+                        // ch, voxel (x, y, z) of the `c × plane` destination; each x is written
+                        // by one thread.
+                        unsafe {
+                            *dst.ptr().add(ch * plane + col + z) =
+                                *src.as_ptr().add(base + z * stride + ch)
+                        };
                     }
                 }
             }

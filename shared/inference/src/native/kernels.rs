@@ -48,6 +48,11 @@ pub struct Job<'a> {
     pub out: *mut f32,
     /// Output step from one output to the next.
     pub ostride: usize,
+    /// 0: outputs channels-last, `wstride` floats each. Else channel-major: channel `c` of
+    /// output `t` at `out + c·out_plane + t·ostride`, only the first `out_channels` written.
+    pub out_plane: usize,
+    /// Channels written in channel-major mode.
+    pub out_channels: usize,
     /// ReLU at the end.
     pub relu: bool,
 }
@@ -96,19 +101,23 @@ fn blocking(remaining: usize) -> (usize, usize) {
 /// outputs: segments for `(count−1)·tstride + k` floats, weights for `k` rows of `wstride`,
 /// outputs and residual for `(count−1)·ostride + wstride`. `wstride` is a multiple of 8.
 pub unsafe fn run(simd: Simd, job: &Job<'_>, count: usize) {
-    debug_assert!(job.wstride % 8 == 0);
+    debug_assert!(job.wstride.is_multiple_of(8));
     match simd {
         Simd::V3(v3) => {
             let mut c0 = 0;
             while c0 < job.wstride {
                 let (m, tmax) = blocking(job.wstride - c0);
+                // Balanced tiles (64 = 11+11+11+11+10+10, not 12·5 + 4): a short last tile
+                // has too few independent accumulators to hide the FMA latency.
+                let tiles = count.div_ceil(tmax);
                 let mut t0 = 0;
-                while t0 < count {
-                    let t = (count - t0).min(tmax);
+                for i in 0..tiles {
+                    let t = (count - t0) / (tiles - i);
                     // SAFETY: the caller's contract covers outputs t0..t0+t, channels c0..c0+8m.
                     unsafe { dispatch(v3, m, t, job, t0, c0) };
                     t0 += t;
                 }
+                debug_assert_eq!(t0, count);
                 c0 += 8 * m;
             }
         }
@@ -181,7 +190,6 @@ unsafe fn tile<const T: usize, const M: usize>(s: V3, job: &Job<'_>, t0: usize, 
             }
         }
         let zero = s.avx._mm256_setzero_ps();
-        let out = job.out.add(t0 * job.ostride + c0);
         let res = job.res;
         for (t, row) in acc.iter().enumerate() {
             for (m, &v) in row.iter().enumerate() {
@@ -193,7 +201,20 @@ unsafe fn tile<const T: usize, const M: usize>(s: V3, job: &Job<'_>, t0: usize, 
                 if job.relu {
                     v = s.avx._mm256_max_ps(v, zero);
                 }
-                store(out.add(t * job.ostride + 8 * m), v);
+                if job.out_plane == 0 {
+                    store(job.out.add((t0 + t) * job.ostride + c0 + 8 * m), v);
+                } else {
+                    let lanes: [f32; 8] = core::mem::transmute(v);
+                    let first = c0 + 8 * m;
+                    for (l, &x) in lanes
+                        .iter()
+                        .enumerate()
+                        .take(job.out_channels.saturating_sub(first))
+                    {
+                        *job.out
+                            .add((first + l) * job.out_plane + (t0 + t) * job.ostride) = x;
+                    }
+                }
             }
         }
     }
@@ -225,9 +246,13 @@ unsafe fn scalar(job: &Job<'_>, count: usize) {
                     *o += rv;
                 }
             }
-            let out = std::slice::from_raw_parts_mut(job.out.add(t * job.ostride), n);
-            for (o, &v) in out.iter_mut().zip(&acc) {
-                *o = if job.relu { v.max(0.0) } else { v };
+            for (c, &v) in acc.iter().enumerate() {
+                let v = if job.relu { v.max(0.0) } else { v };
+                if job.out_plane == 0 {
+                    *job.out.add(t * job.ostride + c) = v;
+                } else if c < job.out_channels {
+                    *job.out.add(c * job.out_plane + t * job.ostride) = v;
+                }
             }
         }
     }
@@ -251,6 +276,7 @@ mod tests {
     }
 
     /// The formula of the module docs, one output at a time in f64.
+    #[allow(clippy::too_many_arguments)]
     fn naive(
         segs: &[(Vec<f32>, Vec<f32>)],
         k: usize,
@@ -325,6 +351,8 @@ mod tests {
                             },
                             out: out.as_mut_ptr(),
                             ostride: n,
+                            out_plane: 0,
+                            out_channels: 0,
                             relu,
                         };
                         unsafe { run(simd, &job, count) };

@@ -35,7 +35,6 @@ use kernels::Simd;
 use mlp::{MlpPlan, Scratch};
 use plan::UnetPlan;
 use rayon::prelude::*;
-use spans::Spans;
 use std::sync::Arc;
 
 const RUNTIME: &str = "native";
@@ -102,13 +101,6 @@ pub struct NativeRuntime {
     card: ModelCard,
     simd: Simd,
     pool: Option<Arc<rayon::ThreadPool>>,
-    /// Wall time of the last U-Net run's output conversion (channels-last → channel-major).
-    output_time: std::time::Duration,
-    /// The U-Net's outputs, channel-major, handed out shared; updated in place where they
-    /// changed (a copy is made only while the caller still holds the previous frame's).
-    outputs: Vec<Arc<Vec<f32>>>,
-    /// Per output: where it holds values other than its background.
-    outputs_changed: Vec<Spans>,
 }
 
 impl std::fmt::Debug for NativeRuntime {
@@ -154,31 +146,12 @@ impl NativeRuntime {
             || Ok(UnetExec::new(plan, pool.clone(), simd)),
             panic_err("unet", true),
         )?;
-        let plan = unet.plan();
-        let outputs = plan
-            .outputs
-            .iter()
-            .map(|&b| {
-                let info = plan.bufs[b];
-                let mut v = vec![0.0; info.channels * info.dims.iter().product::<usize>()];
-                unet.write_channel_major(b, &Spans::full(info.dims), &mut v);
-                Arc::new(v)
-            })
-            .collect();
-        let outputs_changed = plan
-            .outputs
-            .iter()
-            .map(|&b| Spans::empty(plan.bufs[b].dims))
-            .collect();
         Ok(Self {
             unet,
             mlp,
             card,
             simd,
             pool,
-            output_time: Default::default(),
-            outputs,
-            outputs_changed,
         })
     }
 
@@ -189,7 +162,7 @@ impl NativeRuntime {
 
     /// Wall times of the last U-Net run outside the ops: input conversion, output conversion.
     pub fn unet_io_times(&self) -> (std::time::Duration, std::time::Duration) {
-        (self.unet.input_time(), self.output_time)
+        (self.unet.input_time(), self.unet.output_time())
     }
 
     /// Turns the U-Net's background skip on (default) or off (for measurements).
@@ -207,22 +180,17 @@ impl NativeRuntime {
         self.simd.name()
     }
 
-    /// Brings the channel-major outputs up to date with the last run and wraps them.
-    fn unet_tensors(&mut self) -> Result<Vec<OutputTensor>, ModelError> {
+    /// The last run's outputs as tensors (shared with the runtime, no copy).
+    fn unet_tensors(&self) -> Result<Vec<OutputTensor>, ModelError> {
         let names = expected_unet_names(&self.card);
         let plan = self.unet.plan();
         let mut tensors = Vec::with_capacity(plan.outputs.len());
-        for (i, (&b, name)) in plan.outputs.iter().zip(&names).enumerate() {
+        for ((&b, name), data) in plan.outputs.iter().zip(&names).zip(self.unet.outputs()) {
             let info = plan.bufs[b];
-            let changed = self.unet.changed(b);
-            let region = changed.union(&self.outputs_changed[i]);
-            let data = Arc::make_mut(&mut self.outputs[i]);
-            self.unet.write_channel_major(b, &region, data);
-            self.outputs_changed[i] = changed.clone();
             let shape = vec![1, info.channels, info.dims[0], info.dims[1], info.dims[2]];
             tensors.push(OutputTensor::from_shared(
                 shape,
-                self.outputs[i].clone(),
+                data.clone(),
                 "unet",
                 name,
             )?);
@@ -251,10 +219,7 @@ impl GraphRuntime for NativeRuntime {
         let tensors = no_panic(
             || {
                 self.unet.run(normals);
-                let start = std::time::Instant::now();
-                let t = self.unet_tensors();
-                self.output_time = start.elapsed();
-                t
+                self.unet_tensors()
             },
             panic_err("unet", false),
         )?;
