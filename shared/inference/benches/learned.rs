@@ -162,7 +162,86 @@ fn main() {
         );
     }
     background_skip(&files, &grid, iters, *threads.last().unwrap_or(&2));
+    approximate_band(&dir, &grid, iters, *threads.last().unwrap_or(&2));
     breakdown(&dir, workspace, &grid, iters.max(10));
+}
+
+/// The native runtime's approximate mode (`native_band_voxels`, off by default): U-Net time
+/// and how far the backend's outputs move from the exact ones, per band width.
+fn approximate_band(dir: &Path, grid: &NormalGrid, iters: usize, threads: usize) {
+    let card = ModelCard::read(dir).expect("card");
+    let workspace = card.workspace();
+    let mut inputs = vec![("bench scene", grid.clone())];
+    if let Some(g) = real_grid(workspace) {
+        inputs.push(("real frame", g));
+    }
+    println!(
+        "\nNative approximate mode (`native_band_voxels`, off by default; {threads} threads): the \
+         U-Net only within the band around the non-zero input, against the exact outputs \
+         (card threshold). Contacts: voxels selected by both / only exact / only approximate; \
+         the grasp differences are over the contacts both select\n"
+    );
+    println!("| input | band (voxels) | U-Net ms mean (min) | max abs Δ P_contact | max abs Δ P_gripper | contacts both / exact only / approx. only | max abs Δ quality | max abs Δ width (mm) | max Δ baseline (°) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for (label, g) in &inputs {
+        let backend = |band: usize| {
+            let cfg = LearnedConfig {
+                model_dir: dir.to_path_buf(),
+                runtime: RuntimeKind::Native,
+                threads,
+                native_band_voxels: band,
+                ..LearnedConfig::default()
+            };
+            LearnedBackend::new(cfg, &workspace, GripperModel::default()).expect("native backend")
+        };
+        let mut exact = backend(0);
+        let reference = exact.infer(&g.view(), 0).expect("inference");
+        let ref_probs = exact.last_probabilities().clone();
+        for band in [0usize, 16, 12, 8, 6, 4] {
+            let mut b = backend(band);
+            b.infer(&g.view(), 0).expect("inference");
+            let v: Vec<f64> = (0..iters)
+                .map(|_| {
+                    b.infer(&g.view(), 0).expect("inference");
+                    ms(b.last_timings().unet)
+                })
+                .collect();
+            let configs = b.infer(&g.view(), 0).expect("inference");
+            let p = b.last_probabilities();
+            let dmax = |a: &[f32], b: &[f32]| {
+                a.iter()
+                    .zip(b)
+                    .map(|(x, y)| (x - y).abs())
+                    .fold(0.0f32, f32::max)
+            };
+            let key = |c: &psgrasp_geometry::GraspConfiguration| {
+                let q = |v: f32| (v * 1e5).round() as i64;
+                [q(c.contact.x), q(c.contact.y), q(c.contact.z)]
+            };
+            let theirs: std::collections::HashMap<[i64; 3], &psgrasp_geometry::GraspConfiguration> =
+                configs.iter().map(|c| (key(c), c)).collect();
+            let (mut both, mut dq, mut dw, mut da) = (0usize, 0.0f32, 0.0f32, 0.0f32);
+            for c in &reference {
+                if let Some(o) = theirs.get(&key(c)) {
+                    both += 1;
+                    dq = dq.max((c.quality - o.quality).abs());
+                    dw = dw.max((c.width - o.width).abs());
+                    da = da.max(c.baseline.angle(&o.baseline).to_degrees());
+                }
+            }
+            println!(
+                "| {label} | {} | {} | {:.1e} | {:.1e} | {} / {} / {} | {dq:.1e} | {:.2} | {da:.2} |",
+                if band == 0 { "exact".to_string() } else { band.to_string() },
+                mean_min(&v, 1),
+                dmax(&p.contact, &ref_probs.contact),
+                dmax(&p.gripper, &ref_probs.gripper),
+                both / 8,
+                (reference.len() - both) / 8,
+                (configs.len() - both) / 8,
+                dw * 1e3,
+            );
+        }
+    }
 }
 
 /// Measured peak of `threads` threads: 12 independent AVX2 FMA chains per thread, no memory.

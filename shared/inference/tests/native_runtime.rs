@@ -165,6 +165,51 @@ fn fixture_model_equals_tract_frame_after_frame() {
     }
 }
 
+/// All outputs of one U-Net run, concatenated.
+fn unet_values(rt: &mut NativeRuntime, grid: &[f32]) -> Vec<f32> {
+    let o = rt.run_unet(grid).expect("unet");
+    let mut v = o.label_logits.data().to_vec();
+    for f in &o.features {
+        v.extend_from_slice(f.data());
+    }
+    v
+}
+
+#[test]
+fn approximate_band_mode_is_exact_with_a_wide_band_and_forgets_earlier_frames() {
+    let files = files(&fixture_dir());
+    let dims = files.card.dims();
+    let frames = [
+        boxed_grid(dims, [5, 6, 7], [8, 9, 10], 1),
+        boxed_grid(dims, [0, 0, 0], [4, 16, 3], 2),
+        boxed_grid(dims, [10, 2, 12], [16, 5, 16], 3),
+    ];
+    let mut exact = NativeRuntime::new(&files, 1).unwrap();
+    let mut wide = NativeRuntime::new(&files, 1).unwrap();
+    wide.set_band(32);
+    let mut narrow = NativeRuntime::new(&files, 1).unwrap();
+    narrow.set_band(2);
+    for (i, g) in frames.iter().chain(frames.iter().rev()).enumerate() {
+        let e = unet_values(&mut exact, g);
+        assert_close(
+            &format!("wide band, frame {i}"),
+            &unet_values(&mut wide, g),
+            &e,
+        );
+        // The narrow band's outputs depend on this frame only: a fresh runtime agrees.
+        let mut fresh = NativeRuntime::new(&files, 1).unwrap();
+        fresh.set_band(2);
+        let n = unet_values(&mut narrow, g);
+        assert_eq!(n, unet_values(&mut fresh, g), "narrow band, frame {i}");
+        let worst = n
+            .iter()
+            .zip(&e)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        eprintln!("narrow band (2 voxels), frame {i}: max abs difference to exact {worst:.2e}");
+    }
+}
+
 #[test]
 fn shipped_model_equals_tract_on_fused_scenes() {
     let files = files(&shipped_dir());

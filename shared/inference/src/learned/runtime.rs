@@ -45,6 +45,10 @@ pub trait GraphRuntime: Send {
     fn name(&self) -> &'static str;
     /// Runs `unet.onnx` on `normals` (`[3, X, Y, Z]` channel-major, the fused grid's buffer).
     fn run_unet(&mut self, normals: &[f32]) -> Result<UnetOutputs, ModelError>;
+    /// The native runtime, if this is it (default: none).
+    fn as_native(&mut self) -> Option<&mut crate::native::NativeRuntime> {
+        None
+    }
     /// Runs `mlp.onnx` on `features` (`[n, F]` row-major) and appends the `n` rows of outputs to
     /// `out`.
     fn run_mlp(

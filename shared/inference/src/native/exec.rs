@@ -98,6 +98,13 @@ pub struct UnetExec {
     direct: Vec<Option<usize>>,
     /// Wall time of the last run's output conversion.
     output_time: std::time::Duration,
+    /// Approximate mode (0 = off, exact): every op computes only within this many voxels
+    /// (level-0 voxels, halved per level) of the non-zero input; elsewhere its output is taken
+    /// as its background.
+    band: usize,
+    /// Background copies of every buffer and of the direct outputs (approximate mode only:
+    /// voxels that leave the band are reset from them).
+    background: Option<(Vec<Vec<f32>>, Vec<Option<Vec<f32>>>)>,
 }
 
 impl std::fmt::Debug for UnetExec {
@@ -308,6 +315,8 @@ impl UnetExec {
             outputs_changed,
             direct,
             output_time: Default::default(),
+            band: 0,
+            background: None,
         };
         let b = exec.plan.bufs[0];
         let zeros = vec![0.0; b.channels * b.dims.iter().product::<usize>()];
@@ -330,6 +339,59 @@ impl UnetExec {
         self.input_time
     }
 
+    /// Approximate mode: with `band` > 0, every op computes only within `band` voxels (at the
+    /// input's resolution, halved per level) of the input's non-zero voxels and takes its
+    /// background value elsewhere — exact in the encoder near the surface, an approximation of
+    /// the decoder far from it (docs/benchmarks.md measures the effect). 0 (default): exact.
+    pub fn set_band(&mut self, band: usize) {
+        if band > 0 && self.background.is_none() {
+            self.band = 0;
+            let b = self.plan.bufs[0];
+            self.run(&vec![0.0; b.channels * b.dims.iter().product::<usize>()]);
+            let outputs = (0..self.outputs_cm.len())
+                .map(|j| {
+                    self.direct
+                        .contains(&Some(j))
+                        .then(|| self.outputs_cm[j].as_ref().clone())
+                })
+                .collect();
+            self.background = Some((self.bufs.clone(), outputs));
+        }
+        self.band = band;
+    }
+
+    /// Resets buffer `b` (or direct output `j`) to its background over `prev` outside `cur`.
+    fn restore(&mut self, b: usize, direct: Option<usize>, prev: &Spans, cur: &Spans) {
+        let Some((bufs, outputs)) = &self.background else {
+            return;
+        };
+        let info = self.plan.bufs[b];
+        let [_, ny, nz] = info.dims;
+        let plane = info.dims.iter().product::<usize>();
+        match direct {
+            Some(j) => {
+                let bg = outputs[j]
+                    .as_ref()
+                    .expect("direct outputs have a background copy");
+                let dst = Arc::make_mut(&mut self.outputs_cm[j]);
+                prev.for_each_outside(cur, |x, y, lo, hi| {
+                    for c in 0..info.channels {
+                        let r = c * plane + (x * ny + y) * nz;
+                        dst[r + lo..r + hi].copy_from_slice(&bg[r + lo..r + hi]);
+                    }
+                });
+            }
+            None => {
+                let (bg, dst) = (&bufs[b], &mut self.bufs[b]);
+                prev.for_each_outside(cur, |x, y, lo, hi| {
+                    let a = voxel(info.dims, x as isize, y as isize, lo as isize) * info.stride;
+                    let e = a + (hi - lo) * info.stride;
+                    dst[a..e].copy_from_slice(&bg[a..e]);
+                });
+            }
+        }
+    }
+
     /// Turns the background skip on (default) or off (every op computes its whole grid; for
     /// measuring what the skip saves).
     pub fn set_background_skip(&mut self, on: bool) {
@@ -347,6 +409,11 @@ impl UnetExec {
         let write = changed.union(&self.prev[0]);
         self.write_input(input, &write);
         let mut cur: Vec<Option<Spans>> = vec![None; self.plan.bufs.len()];
+        // Approximate mode: the band around the non-zero input, per level.
+        let mut bands: Vec<Spans> = Vec::new();
+        if self.band > 0 {
+            bands.push(changed.dilate(self.band));
+        }
         cur[0] = Some(changed.clone());
         self.prev[0] = changed;
         self.input_time = start.elapsed();
@@ -374,7 +441,25 @@ impl UnetExec {
             if let Some(r) = op.residual {
                 changed = changed.union(cur[r].as_ref().expect("residual runs before"));
             }
-            let compute = changed.union(&self.prev[op.out]);
+            let approximate = !bands.is_empty();
+            if approximate {
+                while bands.last().is_some_and(|b| b.dims()[0] > out_dims[0]) {
+                    let next = bands.last().expect("non-empty").down2();
+                    bands.push(next);
+                }
+                if let Some(band) = bands.iter().find(|b| b.dims() == out_dims) {
+                    changed = changed.intersect(band);
+                }
+                if op.transpose {
+                    // Everything written (whole 2³ blocks) counts as changed.
+                    changed = changed.down2().up2();
+                }
+            }
+            let compute = if approximate {
+                changed.clone()
+            } else {
+                changed.union(&self.prev[op.out])
+            };
             let start = std::time::Instant::now();
             let per_voxel: usize = op.terms.iter().map(|t| t.macs).sum();
             let (macs, dense) = if op.transpose {
@@ -413,8 +498,13 @@ impl UnetExec {
                 dense_macs: dense,
                 time: start.elapsed(),
             });
-            self.prev[op.out] = changed.clone();
-            cur[op.out] = Some(changed);
+            let out = op.out;
+            if approximate {
+                let prev = std::mem::replace(&mut self.prev[out], Spans::empty(out_dims));
+                self.restore(out, self.direct[i], &prev, &changed);
+            }
+            self.prev[out] = changed.clone();
+            cur[out] = Some(changed);
         }
         self.stats = stats;
         let start = std::time::Instant::now();

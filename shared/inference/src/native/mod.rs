@@ -160,6 +160,17 @@ impl NativeRuntime {
         self.unet.stats()
     }
 
+    /// The runtime's thread pool (none with one thread), for work around it on the same threads.
+    pub fn thread_pool(&self) -> Option<Arc<rayon::ThreadPool>> {
+        self.pool.clone()
+    }
+
+    /// Approximate mode of the U-Net ([`UnetExec::set_band`]): 0 (default) exact; `band` > 0
+    /// computes only within `band` voxels of the non-zero input.
+    pub fn set_band(&mut self, band: usize) {
+        self.unet.set_band(band);
+    }
+
     /// Wall times of the last U-Net run outside the ops: input conversion, output conversion.
     pub fn unet_io_times(&self) -> (std::time::Duration, std::time::Duration) {
         (self.unet.input_time(), self.unet.output_time())
@@ -202,6 +213,10 @@ impl NativeRuntime {
 impl GraphRuntime for NativeRuntime {
     fn name(&self) -> &'static str {
         RUNTIME
+    }
+
+    fn as_native(&mut self) -> Option<&mut NativeRuntime> {
+        Some(self)
     }
 
     fn run_unet(&mut self, normals: &[f32]) -> Result<UnetOutputs, ModelError> {

@@ -93,6 +93,44 @@ impl Spans {
             .sum()
     }
 
+    /// Voxels covered by both (intervals intersect into intervals: exact).
+    pub fn intersect(&self, other: &Spans) -> Spans {
+        debug_assert_eq!(self.dims, other.dims);
+        let mut s = self.clone();
+        for (a, &b) in s.cols.iter_mut().zip(&other.cols) {
+            let (lo, hi) = (a.0.max(b.0), a.1.min(b.1));
+            *a = if lo < hi { (lo, hi) } else { (0, 0) };
+        }
+        s
+    }
+
+    /// `self` widened by `r` voxels in every direction (r 3³ dilations).
+    pub fn dilate(&self, r: usize) -> Spans {
+        (0..r).fold(self.clone(), |s, _| s.dilate3())
+    }
+
+    /// Calls `f(x, y, lo, hi)` for the z-intervals of `self` outside `other` (at most two per
+    /// column).
+    pub fn for_each_outside(&self, other: &Spans, mut f: impl FnMut(usize, usize, usize, usize)) {
+        let ny = self.dims[1];
+        for (i, (&(a0, a1), &(b0, b1))) in self.cols.iter().zip(&other.cols).enumerate() {
+            let (x, y) = (i / ny, i % ny);
+            if a0 >= a1 {
+                continue;
+            }
+            if b0 >= b1 || b1 <= a0 || b0 >= a1 {
+                f(x, y, a0 as usize, a1 as usize);
+                continue;
+            }
+            if a0 < b0 {
+                f(x, y, a0 as usize, b0 as usize);
+            }
+            if b1 < a1 {
+                f(x, y, b1 as usize, a1 as usize);
+            }
+        }
+    }
+
     /// Hull of both, column by column.
     pub fn union(&self, other: &Spans) -> Spans {
         debug_assert_eq!(self.dims, other.dims);
@@ -228,6 +266,14 @@ mod tests {
         }
         assert_eq!(u.voxels(), 16);
         assert_eq!(s.union(&Spans::full([4, 4, 8])).share(), 1.0);
+        let mut b = Spans::empty([4, 4, 8]);
+        b.cols[3 * 4 + 1] = (4, 5);
+        b.cols[0] = (1, 2);
+        assert_eq!(s.intersect(&b).voxels(), 1);
+        let mut outside = Vec::new();
+        s.for_each_outside(&b, |x, y, lo, hi| outside.push((x, y, lo, hi)));
+        assert_eq!(outside, [(3, 1, 3, 4), (3, 1, 5, 6)]);
+        assert_eq!(s.dilate(2).col(3, 1), Some((1, 8)));
         assert_eq!(Spans::empty([4, 4, 8]).union(&s), s);
     }
 }
