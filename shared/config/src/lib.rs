@@ -546,11 +546,25 @@ mod tests {
         let err = parse("[inference]\nkind = \"vgn\"\nruntime = \"native\"\n")
             .unwrap_err()
             .to_string();
-        assert!(err.contains("runtime") && err.contains("learned backend only"), "{err}");
+        assert!(
+            err.contains("runtime") && err.contains("learned backend only"),
+            "{err}"
+        );
         let err = parse("[inference]\nkind = \"learned\"\nruntime = \"nativ\"\n")
             .unwrap_err()
             .to_string();
         assert!(err.contains("native"), "{err}");
+        // The approximate mode is the native runtime's, and bounded.
+        let band = "[inference]\nkind = \"learned\"\nnative_band_voxels = 8\n";
+        let err = parse(&format!("{band}runtime = \"tract\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("native_band_voxels"), "{err}");
+        parse(&format!("{band}runtime = \"native\"\n")).unwrap();
+        let err = parse(&format!("{band}runtime = \"native\"\n").replace("= 8", "= 65"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("native_band_voxels"), "{err}");
     }
 
     #[test]

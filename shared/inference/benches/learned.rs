@@ -245,6 +245,13 @@ fn approximate_band(dir: &Path, grid: &NormalGrid, iters: usize, threads: usize)
 }
 
 /// Measured peak of `threads` threads: 12 independent AVX2 FMA chains per thread, no memory.
+#[cfg(not(target_arch = "x86_64"))]
+fn fma_peak_gflops(_threads: usize) -> f64 {
+    f64::NAN
+}
+
+/// Measured peak of `threads` threads: 12 independent AVX2 FMA chains per thread, no memory.
+#[cfg(target_arch = "x86_64")]
 fn fma_peak_gflops(threads: usize) -> f64 {
     let Some(v3) = pulp::x86::V3::try_new() else {
         return f64::NAN;

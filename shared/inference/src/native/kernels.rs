@@ -15,7 +15,9 @@
 //! value per `k` and `t` and multiplies it with `M` weight vectors (AVX2 + FMA through `pulp`'s
 //! `V3`; a portable scalar path otherwise). Register blocking: `T = 12` for 8 channels, else
 //! `T = 6` outputs × 16 channels (wider outputs in chunks of 16).
+#[cfg(target_arch = "x86_64")]
 use pulp::x86::V3;
+#[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::__m256;
 
 /// One strided input of a tile (see the module docs).
@@ -61,6 +63,7 @@ pub struct Job<'a> {
 #[derive(Debug, Clone, Copy)]
 pub enum Simd {
     /// AVX2 + FMA (x86-64-v3).
+    #[cfg(target_arch = "x86_64")]
     V3(V3),
     /// Portable scalar code.
     Scalar,
@@ -69,15 +72,17 @@ pub enum Simd {
 impl Simd {
     /// The best available.
     pub fn detect() -> Self {
-        match V3::try_new() {
-            Some(v3) => Self::V3(v3),
-            None => Self::Scalar,
+        #[cfg(target_arch = "x86_64")]
+        if let Some(v3) = V3::try_new() {
+            return Self::V3(v3);
         }
+        Self::Scalar
     }
 
     /// A name for reports.
     pub fn name(self) -> &'static str {
         match self {
+            #[cfg(target_arch = "x86_64")]
             Self::V3(_) => "avx2+fma",
             Self::Scalar => "scalar",
         }
@@ -103,6 +108,7 @@ fn blocking(remaining: usize) -> (usize, usize) {
 pub unsafe fn run(simd: Simd, job: &Job<'_>, count: usize) {
     debug_assert!(job.wstride.is_multiple_of(8));
     match simd {
+        #[cfg(target_arch = "x86_64")]
         Simd::V3(v3) => {
             let mut c0 = 0;
             while c0 < job.wstride {
@@ -125,6 +131,7 @@ pub unsafe fn run(simd: Simd, job: &Job<'_>, count: usize) {
     }
 }
 
+#[cfg(target_arch = "x86_64")]
 macro_rules! tiles {
     ($v3:expr, $m:expr, $t:expr, $job:expr, $t0:expr, $c0:expr; $($mm:literal => [$($tt:literal)*]),*) => {
         match ($m, $t) {
@@ -137,6 +144,7 @@ macro_rules! tiles {
     };
 }
 
+#[cfg(target_arch = "x86_64")]
 #[inline(never)]
 unsafe fn dispatch(v3: V3, m: usize, t: usize, job: &Job<'_>, t0: usize, c0: usize) {
     tiles!(v3, m, t, job, t0, c0;
@@ -144,12 +152,14 @@ unsafe fn dispatch(v3: V3, m: usize, t: usize, job: &Job<'_>, t0: usize, c0: usi
         2 => [1 2 3 4 5 6])
 }
 
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 unsafe fn load(p: *const f32) -> __m256 {
     // SAFETY: the caller guarantees 8 readable floats.
     unsafe { core::ptr::read_unaligned(p as *const __m256) }
 }
 
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 unsafe fn store(p: *mut f32, v: __m256) {
     // SAFETY: the caller guarantees 8 writable floats.
@@ -157,6 +167,7 @@ unsafe fn store(p: *mut f32, v: __m256) {
 }
 
 /// `T` outputs from `t0`, channels `c0 .. c0 + 8M`.
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 unsafe fn tile<const T: usize, const M: usize>(s: V3, job: &Job<'_>, t0: usize, c0: usize) {
     unsafe {
