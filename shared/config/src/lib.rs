@@ -531,6 +531,43 @@ mod tests {
     }
 
     #[test]
+    fn the_native_runtime_is_the_shipped_default_and_runs_the_learned_backend_only() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/default.toml");
+        let cfg = PipelineConfig::load(&path).unwrap();
+        let BackendConfig::Learned(l) = &cfg.cell.inference else {
+            panic!("the shipped default is the learned backend");
+        };
+        assert_eq!(l.runtime, psgrasp_inference::RuntimeKind::Native);
+        let cfg = parse("[inference]\nkind = \"learned\"\nruntime = \"native\"\n").unwrap();
+        let BackendConfig::Learned(l) = &cfg.cell.inference else {
+            panic!("expected a learned backend");
+        };
+        assert_eq!(l.runtime, psgrasp_inference::RuntimeKind::Native);
+        let err = parse("[inference]\nkind = \"vgn\"\nruntime = \"native\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("runtime") && err.contains("learned backend only"),
+            "{err}"
+        );
+        let err = parse("[inference]\nkind = \"learned\"\nruntime = \"nativ\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("native"), "{err}");
+        // The approximate mode is the native runtime's, and bounded.
+        let band = "[inference]\nkind = \"learned\"\nnative_band_voxels = 8\n";
+        let err = parse(&format!("{band}runtime = \"tract\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("native_band_voxels"), "{err}");
+        parse(&format!("{band}runtime = \"native\"\n")).unwrap();
+        let err = parse(&format!("{band}runtime = \"native\"\n").replace("= 8", "= 65"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("native_band_voxels"), "{err}");
+    }
+
+    #[test]
     fn vgn_model_paths_are_relative_to_the_config_file() {
         let dir = std::env::temp_dir().join(format!("psgrasp-config-vgn-{}", std::process::id()));
         std::fs::create_dir_all(dir.join("config")).unwrap();

@@ -37,6 +37,7 @@ pub mod analytic;
 mod backend_de;
 pub mod learned;
 mod model_error;
+pub mod native;
 pub mod onnx;
 pub mod vgn;
 

@@ -87,6 +87,12 @@ impl VgnConfig {
     pub fn validate(&self) -> Result<(), InferenceError> {
         let bad = |field, reason| Err(InferenceError::InvalidConfig { field, reason });
         check_model_source(&self.model_dir, self.ort_library.as_deref(), self.threads)?;
+        if self.runtime == RuntimeKind::Native {
+            return bad(
+                "runtime",
+                "\"native\" runs the learned backend only; use \"tract\" or \"ort\"",
+            );
+        }
         if !(0.0..=1.0).contains(&self.quality_threshold) {
             return bad("quality_threshold", "must lie in [0, 1]");
         }

@@ -169,6 +169,11 @@ fn tract_agrees_with_the_pytorch_reference() {
     agreement(RuntimeKind::Tract, None);
 }
 
+#[test]
+fn native_agrees_with_the_pytorch_reference() {
+    agreement(RuntimeKind::Native, None);
+}
+
 #[cfg(feature = "ort")]
 fn ort_library() -> PathBuf {
     std::env::var_os("ORT_DYLIB_PATH")
@@ -341,6 +346,11 @@ fn tract_backend_end_to_end() {
     backend_end_to_end(RuntimeKind::Tract, None);
 }
 
+#[test]
+fn native_backend_end_to_end() {
+    backend_end_to_end(RuntimeKind::Native, None);
+}
+
 #[cfg(feature = "ort")]
 #[test]
 fn ort_backend_end_to_end() {
@@ -456,6 +466,11 @@ fn changed_onnx_files_are_refused_by_sha256() {
 #[test]
 fn truncated_or_garbage_onnx_is_an_error_not_a_panic() {
     truncated_or_garbage(RuntimeKind::Tract);
+}
+
+#[test]
+fn truncated_or_garbage_onnx_is_an_error_not_a_panic_with_native() {
+    truncated_or_garbage(RuntimeKind::Native);
 }
 
 #[cfg(feature = "ort")]

@@ -61,6 +61,11 @@ pub struct LearnedConfig {
     /// Overrides the card's `inference.single_approach`: `true` keeps only the best of the 18
     /// approaches per grasp (the paper's "w κ + 1app" ablation of a model trained as 8app).
     pub single_approach: Option<bool>,
+    /// `runtime = "native"` only, approximate: computes the U-Net only within this many voxels
+    /// of the observed surface (the grid's non-zero normals; halved per level) and takes every
+    /// layer's background value farther away. 0 (default): exact. Effect on the outputs in
+    /// docs/benchmarks.md.
+    pub native_band_voxels: usize,
 }
 
 impl Default for LearnedConfig {
@@ -74,6 +79,7 @@ impl Default for LearnedConfig {
             contact_probability: None,
             mlp_batch: 4096,
             single_approach: None,
+            native_band_voxels: 0,
         }
     }
 }
@@ -93,6 +99,12 @@ impl LearnedConfig {
         }
         if !(1..=1 << 20).contains(&self.mlp_batch) {
             return bad("mlp_batch", "must lie in 1..=1048576");
+        }
+        if self.native_band_voxels > 64 {
+            return bad("native_band_voxels", "must lie in 0..=64");
+        }
+        if self.native_band_voxels > 0 && self.runtime != RuntimeKind::Native {
+            return bad("native_band_voxels", "needs runtime = \"native\"");
         }
         Ok(())
     }
@@ -188,6 +200,7 @@ impl LearnedModel {
                 let _ = ort_library;
                 return Err(crate::onnx::ort_not_built());
             }
+            RuntimeKind::Native => Box::new(crate::native::NativeRuntime::new(files, threads)?),
         };
         Ok(Self {
             card: files.card.clone(),
@@ -211,6 +224,11 @@ impl LearnedModel {
     /// The model card.
     pub fn card(&self) -> &ModelCard {
         &self.card
+    }
+
+    /// The native runtime, when that is the runtime (its statistics and settings).
+    pub fn native_mut(&mut self) -> Option<&mut crate::native::NativeRuntime> {
+        self.runtime.as_native()
     }
 
     /// The runtime's name (`"tract"` or `"ort"`).
@@ -274,7 +292,7 @@ pub struct LearnedBackend {
     name: String,
     contact_probability: f32,
     /// Runs sampling and decoding on `threads` threads (None: the calling thread only).
-    pool: Option<rayon::ThreadPool>,
+    pool: Option<std::sync::Arc<rayon::ThreadPool>>,
     probabilities: ClassProbabilities,
     voxels: Vec<u32>,
     points: Vec<[f32; 3]>,
@@ -323,13 +341,23 @@ impl LearnedBackend {
     /// Builds the backend from already checked model files.
     pub fn from_files(cfg: LearnedConfig, files: &ModelFiles) -> Result<Self, InferenceError> {
         cfg.validate()?;
-        let model = LearnedModel::new(files, cfg.runtime, cfg.ort_library.as_deref(), cfg.threads)?;
+        let mut model =
+            LearnedModel::new(files, cfg.runtime, cfg.ort_library.as_deref(), cfg.threads)?;
+        // The native runtime's pool also runs sampling and decoding: one set of worker threads
+        // per backend, not two taking turns on the same cores.
+        let mut native_pool = None;
+        if let Some(native) = model.native_mut() {
+            native.set_band(cfg.native_band_voxels);
+            native_pool = native.thread_pool();
+        }
         let contact_probability = cfg
             .contact_probability
             .unwrap_or(files.card.thresholds.contact_probability);
         let threads = runtime::resolve_threads(cfg.threads);
-        let pool = if threads > 1 {
-            Some(
+        let pool = if native_pool.is_some() {
+            native_pool
+        } else if threads > 1 {
+            Some(std::sync::Arc::new(
                 rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)
                     .thread_name(|i| format!("psgrasp-learned-{i}"))
@@ -338,7 +366,7 @@ impl LearnedBackend {
                         runtime: "rayon",
                         reason: format!("cannot start {threads} threads: {e}"),
                     })?,
-            )
+            ))
         } else {
             None
         };

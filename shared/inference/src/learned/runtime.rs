@@ -41,10 +41,14 @@ pub struct UnetOutputs {
 
 /// A runtime that executes the two graphs of one model.
 pub trait GraphRuntime: Send {
-    /// `"tract"` or `"ort"`.
+    /// `"tract"`, `"ort"` or `"native"`.
     fn name(&self) -> &'static str;
     /// Runs `unet.onnx` on `normals` (`[3, X, Y, Z]` channel-major, the fused grid's buffer).
     fn run_unet(&mut self, normals: &[f32]) -> Result<UnetOutputs, ModelError>;
+    /// The native runtime, if this is it (default: none).
+    fn as_native(&mut self) -> Option<&mut crate::native::NativeRuntime> {
+        None
+    }
     /// Runs `mlp.onnx` on `features` (`[n, F]` row-major) and appends the `n` rows of outputs to
     /// `out`.
     fn run_mlp(
@@ -65,14 +69,17 @@ pub fn expected_unet_shapes(card: &ModelCard) -> Vec<Vec<usize>> {
 }
 
 /// Expected output names of the U-Net: `label_logits`, then `unet.feature_outputs`.
-fn expected_unet_names(card: &ModelCard) -> Vec<String> {
+pub(crate) fn expected_unet_names(card: &ModelCard) -> Vec<String> {
     std::iter::once(LABEL_LOGITS.to_string())
         .chain(card.unet.feature_outputs.iter().cloned())
         .collect()
 }
 
 /// Splits the U-Net outputs (in [`expected_unet_names`] order) and checks their shapes.
-fn unet_outputs(card: &ModelCard, tensors: Vec<OutputTensor>) -> Result<UnetOutputs, ModelError> {
+pub(crate) fn unet_outputs(
+    card: &ModelCard,
+    tensors: Vec<OutputTensor>,
+) -> Result<UnetOutputs, ModelError> {
     let mut it = tensors.into_iter();
     let label_logits = it.next().ok_or_else(|| ModelError::GraphInterface {
         graph: "unet",
@@ -112,7 +119,7 @@ fn check_unet_outputs(card: &ModelCard, out: &UnetOutputs) -> Result<(), ModelEr
 }
 
 /// Appends one MLP batch (`outputs` in [`MLP_OUTPUTS`] order) to `out`, checking the shapes.
-fn append_mlp(
+pub(crate) fn append_mlp(
     outputs: [&[f32]; 5],
     shapes: [&[usize]; 5],
     n: usize,

@@ -30,14 +30,17 @@ pub enum RuntimeKind {
     Tract,
     /// ONNX Runtime through `ort` (needs the `ort` cargo feature and a `libonnxruntime.so`).
     Ort,
+    /// psgrasp's own kernels for the learned backend's U-Net and MLP ([`crate::native`]).
+    Native,
 }
 
 impl RuntimeKind {
-    /// `"tract"` or `"ort"`.
+    /// `"tract"`, `"ort"` or `"native"`.
     pub fn name(self) -> &'static str {
         match self {
             Self::Tract => "tract",
             Self::Ort => "ort",
+            Self::Native => "native",
         }
     }
 }
@@ -132,6 +135,7 @@ impl FixedGraph {
                 let _ = (ort_library, spec);
                 Err(ort_not_built())
             }
+            RuntimeKind::Native => Err(native_single_graph(spec.graph)),
         }
     }
 
@@ -168,6 +172,17 @@ impl FixedGraph {
             #[cfg(feature = "ort")]
             Engine::Ort(session) => ort::run_fixed(session, spec, input),
         }
+    }
+}
+
+/// The error for `runtime = "native"` on a graph other than the learned backend's two.
+pub(crate) fn native_single_graph(graph: &'static str) -> ModelError {
+    ModelError::RuntimeUnavailable {
+        runtime: "native",
+        reason: format!(
+            "the native runtime runs the learned backend's U-Net and MLP only, not `{graph}`; \
+             use runtime = \"tract\" or \"ort\""
+        ),
     }
 }
 

@@ -10,6 +10,7 @@ pub struct OutputTensor {
 
 enum Storage {
     Tract(TValue),
+    Shared(std::sync::Arc<Vec<f32>>),
     #[cfg(feature = "ort")]
     Ort(ort::value::DynValue),
 }
@@ -33,6 +34,22 @@ impl OutputTensor {
         let t = Self {
             shape,
             storage: Storage::Tract(value),
+        };
+        t.checked_data(graph, name)?;
+        Ok(t)
+    }
+
+    /// Wraps values shared with the runtime that computed them (the native runtime updates
+    /// its output grids in place between frames), checking their count.
+    pub(crate) fn from_shared(
+        shape: Vec<usize>,
+        data: std::sync::Arc<Vec<f32>>,
+        graph: &'static str,
+        name: &str,
+    ) -> Result<Self, ModelError> {
+        let t = Self {
+            shape,
+            storage: Storage::Shared(data),
         };
         t.checked_data(graph, name)?;
         Ok(t)
@@ -69,6 +86,7 @@ impl OutputTensor {
                 .try_as_plain_ram()
                 .and_then(|p| p.as_slice::<f32>())
                 .map_err(|e| e.to_string()),
+            Storage::Shared(v) => Ok(v.as_slice()),
             #[cfg(feature = "ort")]
             Storage::Ort(v) => v
                 .try_extract_tensor::<f32>()
