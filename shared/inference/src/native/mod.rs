@@ -19,6 +19,7 @@ pub mod exec;
 pub mod graph;
 pub mod kernels;
 pub mod mlp;
+mod pack;
 pub mod plan;
 pub mod spans;
 
