@@ -96,11 +96,45 @@ pub fn print_report(report: &RunReport) {
             v.last().copied().unwrap_or(f64::NAN)
         );
     }
+    print_slowest_frames(&ok, SLOWEST_FRAMES_SHOWN);
     let picks: Vec<usize> = ok.iter().map(|o| o.picks.len()).collect();
     if !picks.is_empty() {
         println!(
             "\nPicks per frame: mean {:.1}",
             picks.iter().sum::<usize>() as f64 / picks.len() as f64
+        );
+    }
+}
+
+/// Frames listed in the report's table of the slowest frames.
+const SLOWEST_FRAMES_SHOWN: usize = 5;
+
+/// The `count` frames of longest end-to-end time with their spans, to tell where a tail comes
+/// from (a stage, queueing, the first frames) and the order they arrived in.
+fn print_slowest_frames(ok: &[&FrameOutcome], count: usize) {
+    if ok.is_empty() {
+        return;
+    }
+    let mut by_arrival: Vec<&FrameOutcome> = ok.to_vec();
+    by_arrival.sort_by_key(|o| o.frame_id());
+    let mut slowest: Vec<(usize, &FrameOutcome)> = by_arrival.into_iter().enumerate().collect();
+    slowest.sort_by(|a, b| {
+        let e2e = |o: &FrameOutcome| stage_spans(&o.header)[4].1;
+        e2e(b.1).total_cmp(&e2e(a.1))
+    });
+    println!("\nSlowest frames (ms):\n\n| frame (n-th of the run) | grid-fusion | inference | grasp-selection | transport+queue | end-to-end | picks |\n|---|---|---|---|---|---|---|");
+    for (n, o) in slowest.into_iter().take(count) {
+        let s = stage_spans(&o.header);
+        println!(
+            "| {} ({}) | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} |",
+            o.frame_id(),
+            n + 1,
+            s[0].1,
+            s[1].1,
+            s[2].1,
+            s[3].1,
+            s[4].1,
+            o.picks.len()
         );
     }
 }
