@@ -18,8 +18,10 @@
 //! sub-voxel order; the seed is unused (the network is deterministic). Per-stage wall times of the
 //! last frame are in [`LearnedBackend::last_timings`].
 //!
-//! Runtimes: tract (pure Rust, default) and ONNX Runtime (`runtime = "ort"`, cargo feature `ort`,
-//! library from `ort_library` or `ORT_DYLIB_PATH`).
+//! Runtimes: psgrasp's own kernels ([`crate::native`], `runtime = "native"`, the default and the
+//! fastest on CPUs), tract (pure Rust, `runtime = "tract"`) and ONNX Runtime (`runtime = "ort"`,
+//! cargo feature `ort`, library from `ort_library` or `ORT_DYLIB_PATH`); tract and ONNX Runtime
+//! are the references the native runtime is tested against.
 pub mod card;
 pub mod decode;
 pub mod runtime;
@@ -46,7 +48,7 @@ pub struct LearnedConfig {
     /// Model directory with `card.json`, `unet.onnx`, `mlp.onnx` (relative paths are relative to
     /// the working directory of the process).
     pub model_dir: PathBuf,
-    /// Graph runtime.
+    /// Graph runtime (default: native).
     pub runtime: RuntimeKind,
     /// `libonnxruntime.so` for `runtime = "ort"`; if unset, `$ORT_DYLIB_PATH`.
     pub ort_library: Option<PathBuf>,
@@ -72,7 +74,7 @@ impl Default for LearnedConfig {
     fn default() -> Self {
         Self {
             model_dir: PathBuf::from("models/default"),
-            runtime: RuntimeKind::Tract,
+            runtime: RuntimeKind::Native,
             ort_library: None,
             threads: 0,
             max_contact_voxels: 4096,
