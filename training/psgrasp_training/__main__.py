@@ -1,4 +1,4 @@
-"""Command line: ``python -m psgrasp_training {train,export,init,hitrate} ...``."""
+"""Command line: ``python -m psgrasp_training {train,export,init,evaluate,profile,hitrate} ...``."""
 
 from __future__ import annotations
 
@@ -46,6 +46,14 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--data", required=True, type=Path)
     v.add_argument("--checkpoint", default="latest.pt", help="file name under RUN/checkpoints")
     v.add_argument("--max-scenes", type=int, default=0)
+
+    f = sub.add_parser("profile", help="time the phases of training steps (nothing saved)")
+    f.add_argument("--config", required=True, type=Path)
+    f.add_argument("--data", required=True, type=Path)
+    f.add_argument("--steps", type=int, default=10)
+    f.add_argument("--start-step", type=int, default=1000,
+                   help="step to take the scenes, augmentation and MLP warm-up state from")
+    f.add_argument("--threads", type=int, default=None, help="override train.threads")
 
     h = sub.add_parser("hitrate", help="measure the neighbour hit-rate of the contact-point rules on a dataset")
     h.add_argument("--config", required=True, type=Path)
@@ -105,6 +113,14 @@ def main(argv: list[str] | None = None) -> int:
             from .train import evaluate_run
 
             evaluate_run(args.run, args.data, args.checkpoint, args.max_scenes)
+        elif args.command == "profile":
+            from .profile import profile_steps
+
+            cfg = load_config(args.config)
+            if args.threads is not None:
+                cfg.train.threads = args.threads
+            cfg.validate()
+            profile_steps(cfg, args.data, args.steps, args.start_step)
         elif args.command == "hitrate":
             from .train import hitrate_report
 

@@ -160,24 +160,37 @@ def scene_for_step(ds: SceneDataset, cfg: Config, step: int) -> tuple[Scene, tor
     return scene, g
 
 
+def _no_mark(phase: str) -> None:
+    """The default phase marker of :func:`training_step` (timing off)."""
+
+
 def training_step(net: GraspNet, scene: Scene, cfg: Config, g: torch.Generator, device: torch.device,
-                  with_mlp: bool) -> dict[str, torch.Tensor | float]:
-    """Forward pass and loss of one scene (no optimiser step)."""
+                  with_mlp: bool, mark=_no_mark) -> dict[str, torch.Tensor | float]:
+    """Forward pass and loss of one scene (no optimiser step).
+
+    mark(phase) is called as each phase ends (``psgrasp_training profile`` times them)."""
     dev_scene = scene_to(scene, device)
     logits, encs = net.unet(dev_scene.normals.unsqueeze(0))
+    mark("unet forward")
     label = focal_loss(logits, dev_scene.labels.unsqueeze(0), cfg.loss.class_weights, cfg.loss.focal_gamma)
+    mark("label loss")
     out: dict[str, torch.Tensor | float] = {"label": label}
     if with_mlp:
         probs = class_probabilities(logits)
         points = contact_voxel_points(scene, cfg, g)
         extra = predicted_voxel_points(scene, probs[0, 1].detach().cpu(), cfg, g)
         points = torch.cat([points, extra], 0)
+        mark("contact points")
         index = GraspIndex(scene.contact, cfg.contacts.neighbour_radius_m)
         targets = targets_to(grasp_targets(scene, index, points, cfg), device)
         pts = points.to(device)
+        mark("grasp targets")
         features = sample_features(encs, pts, scene.extent_m)
+        mark("feature sampling")
         mlp_out = net.mlp(features)
+        mark("mlp forward")
         terms = grasp_loss(dev_scene, targets, pts, mlp_out, probs, cfg, cfg.grid.approach_depth_m)
+        mark("grasp loss")
         out.update(terms)
         out["points"] = float(len(points))
         out["hit_rate"] = float(targets.has.float().mean()) if len(points) else 0.0

@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
@@ -165,3 +166,48 @@ def test_a_budget_fitted_run_ends_its_schedule_with_the_budget(box_dataset, tmp_
     assert 3 + 3 < iterations < 10**6  # past the warm-up and probe steps
     assert load_checkpoint(run)["step"] == iterations  # ended by its schedule, not the hard stop
     assert json.loads((run / "model" / "card.json").read_text())["training"]["iterations"] == iterations
+
+
+def test_profile_times_every_phase_of_the_steps_training_runs(box_dataset):
+    from conftest import tiny_config
+
+    from psgrasp_training.profile import profile_steps
+
+    lines = []
+    cfg = tiny_config(iterations=6, checkpoint_every=0, mlp_warmup_iterations=0)
+    means = profile_steps(cfg, box_dataset, steps=2, start_step=0, log=lines.append)
+    assert list(means) == ["scene load + flip", "unet forward", "label loss", "contact points", "grasp targets",
+                           "feature sampling", "mlp forward", "grasp loss", "backward", "optimiser step"]
+    assert all(v > 0 for v in means.values())
+    table = "\n".join(lines)
+    assert "| backward |" in table and "steps/s" in table
+    # Before the MLP warm-up ends only the label phases run.
+    early = profile_steps(tiny_config(iterations=6, mlp_warmup_iterations=100), box_dataset, steps=1, start_step=0,
+                          log=lambda _: None)
+    assert "mlp forward" not in early and "unet forward" in early
+
+
+def test_a_run_resumed_in_a_new_process_equals_an_uninterrupted_one(box_dataset, tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "tiny.toml"
+
+    def cli(*args):
+        env = {**os.environ, "OMP_NUM_THREADS": "1"}
+        subprocess.run([sys.executable, "-m", "psgrasp_training", "train", "--config", str(config), "--data",
+                        str(box_dataset), "--iterations", "8", "--no-export", *args],
+                       check=True, capture_output=True, cwd=Path(__file__).resolve().parents[1], env=env)
+
+    cli("--out", str(tmp_path / "whole"))
+    cli("--out", str(tmp_path / "parts"), "--stop-at", "3")
+    assert load_checkpoint(tmp_path / "parts")["step"] == 3
+    cli("--out", str(tmp_path / "parts"), "--stop-at", "6", "--resume")
+    cli("--out", str(tmp_path / "parts"), "--resume")
+    whole, parts = (load_checkpoint(tmp_path / r) for r in ("whole", "parts"))
+    assert whole["step"] == parts["step"] == 8
+    for k in whole["model"]:
+        assert torch.equal(whole["model"][k], parts["model"][k]), k
+    for a, b in zip(whole["optimizer"]["state"].values(), parts["optimizer"]["state"].values()):
+        assert torch.equal(a["exp_avg"], b["exp_avg"]) and torch.equal(a["exp_avg_sq"], b["exp_avg_sq"])
