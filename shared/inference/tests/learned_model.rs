@@ -366,7 +366,8 @@ fn backend_builds_from_toml_config() {
     let cfg: BackendConfig = toml::from_str(&text).unwrap();
     assert_eq!(cfg.kind(), "learned");
     let backend = backend_from_config(&cfg, gripper()).unwrap();
-    assert_eq!(backend.name(), "learned-tract");
+    // A config that names no runtime runs the native one.
+    assert_eq!(backend.name(), "learned-native");
     backend_for_workspace(&cfg, &workspace(), gripper()).unwrap();
     // The pipeline's workspace or gripper differs from the card: refused at start-up.
     assert_card_mismatches_are_refused(&cfg, workspace(), gripper());
