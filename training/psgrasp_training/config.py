@@ -68,6 +68,11 @@ class DataConfig:
     cache: bool = False
     #: Random flips of the x and/or y axis (normals, labels and grasps transformed consistently).
     flip_augmentation: bool = True
+    #: Train on crops of this many voxels per axis instead of the whole grid ([] = the whole grid):
+    #: each step's crop holds a random ground-truth contact voxel (data.crop_scene). Validation,
+    #: export and inference keep the whole grid (the network is fully convolutional). Each size
+    #: must be a multiple of 2^(levels−1) and at most the grid's.
+    crop: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -249,6 +254,11 @@ class Config:
                 raise ConfigError(f"grid.{name} must be > 0")
         if self.data.val_every < 2:
             raise ConfigError("data.val_every must be ≥ 2")
+        if self.data.crop:
+            crop = self.data.crop
+            if len(crop) != 3 or any(c < 1 or c > d or c % 2 ** (m.levels - 1) for c, d in zip(crop, g.dims)):
+                raise ConfigError(f"data.crop {crop} must be three sizes ≤ grid.dims {g.dims}, each a multiple of "
+                                  f"2^(levels-1) = {2 ** (m.levels - 1)}")
         c = self.contacts
         if c.rule not in ("jittered-contact", "voxel-uniform"):
             raise ConfigError(f"contacts.rule: {c.rule!r} is not 'jittered-contact' or 'voxel-uniform'")

@@ -136,6 +136,40 @@ def flip_scene(scene: Scene, flip_x: bool, flip_y: bool) -> Scene:
                    baseline=baseline, collision_free=free.contiguous())
 
 
+def crop_origin(scene: Scene, size: list[int], generator: torch.Generator) -> list[int]:
+    """Voxel origin of a crop of `size` that holds a ground-truth contact voxel drawn at random
+    (centred on it where the grid allows); a uniformly drawn origin in a scene without one."""
+    dims = scene.dims
+    room = [d - s for d, s in zip(dims, size)]
+    contacts = torch.nonzero(scene.labels == 1)
+    if len(contacts) == 0:
+        return [int(torch.randint(r + 1, (1,), generator=generator)) for r in room]
+    centre = contacts[int(torch.randint(len(contacts), (1,), generator=generator))].tolist()
+    return [min(max(c - s // 2, 0), r) for c, s, r in zip(centre, size, room)]
+
+
+def crop_scene(scene: Scene, origin: list[int], size: list[int]) -> Scene:
+    """The box of `size` voxels from voxel `origin` as a scene of its own: the grids sliced, the
+    grasps whose contact lies inside kept, with contacts in the crop's frame (origin at its corner).
+    Baselines, widths, qualities and collision flags do not depend on the frame."""
+    if any(o < 0 or o + s > d for o, s, d in zip(origin, size, scene.dims)):
+        raise ValueError(f"crop {size} at {origin} leaves the grid {scene.dims}")
+    (x0, y0, z0), (sx, sy, sz) = origin, size
+    lo = torch.tensor(origin, dtype=torch.float32) * scene.voxel_size_m
+    hi = torch.tensor([o + s for o, s in zip(origin, size)], dtype=torch.float32) * scene.voxel_size_m
+    inside = ((scene.contact >= lo) & (scene.contact < hi)).all(1)
+    return replace(
+        scene,
+        normals=scene.normals[:, x0:x0 + sx, y0:y0 + sy, z0:z0 + sz].contiguous(),
+        labels=scene.labels[x0:x0 + sx, y0:y0 + sy, z0:z0 + sz].contiguous(),
+        contact=scene.contact[inside] - lo,
+        baseline=scene.baseline[inside],
+        width=scene.width[inside],
+        quality=scene.quality[inside],
+        collision_free=scene.collision_free[inside],
+    )
+
+
 class SceneDataset:
     """A psgrasp dataset directory with a deterministic train/validation split by scene index."""
 

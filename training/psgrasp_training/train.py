@@ -17,7 +17,7 @@ import torch
 
 from .checkpoint import DatasetInfo, RunError, load_checkpoint, save_checkpoint, write_json
 from .config import Config
-from .data import Scene, SceneDataset, flip_scene
+from .data import Scene, SceneDataset, crop_origin, crop_scene, flip_scene
 from .decode import class_probabilities, sample_features, sample_grid, subvoxel_points
 from .export import export_model
 from .losses import (GraspIndex, contact_voxel_points, focal_loss, grasp_loss, grasp_targets,
@@ -148,7 +148,8 @@ def targets_to(targets, device: torch.device):
 
 
 def scene_for_step(ds: SceneDataset, cfg: Config, step: int) -> tuple[Scene, torch.Generator]:
-    """The (augmented) training scene of an iteration and the iteration's generator."""
+    """The (augmented, and with data.crop cropped) training scene of an iteration and the
+    iteration's generator."""
     n = len(ds.train_entries)
     epoch, pos = divmod(step, n)
     perm = torch.randperm(n, generator=torch.Generator().manual_seed(derive_seed(cfg.seed, 1, epoch)))
@@ -157,6 +158,8 @@ def scene_for_step(ds: SceneDataset, cfg: Config, step: int) -> tuple[Scene, tor
     if cfg.data.flip_augmentation:
         fx, fy = (torch.rand(2, generator=g) < 0.5).tolist()
         scene = flip_scene(scene, fx, fy)
+    if cfg.data.crop:
+        scene = crop_scene(scene, crop_origin(scene, cfg.data.crop, g), cfg.data.crop)
     return scene, g
 
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 from safetensors.numpy import save_file
 
-from psgrasp_training.data import DatasetError, SceneDataset, flip_scene, read_scene
+from psgrasp_training.data import DatasetError, SceneDataset, crop_origin, crop_scene, flip_scene, read_scene
 from psgrasp_training.decode import approach_vectors
 from synthetic import APPROACH_DEPTH, make_scene
 
@@ -86,3 +86,51 @@ def test_modulo_split(box_dataset, tiny_cfg):
     cfg = config_from_dict({"data": {"val_every": 3}})
     ds = SceneDataset(box_dataset, cfg)
     assert [e["index"] for e in ds.train_entries] == [0, 1] and [e["index"] for e in ds.val_entries] == [2]
+
+
+def test_crops_keep_labels_normals_and_grasps_aligned(tmp_path):
+    tensors, meta = make_scene(0, np.random.default_rng(2))
+    scene = scene_from_tensors(tmp_path, tensors, meta)
+    s = scene.voxel_size_m
+    size = [8, 8, 8]
+    seen = 0
+    for seed in range(12):
+        origin = crop_origin(scene, size, torch.Generator().manual_seed(seed))
+        assert all(0 <= o <= d - c for o, c, d in zip(origin, size, scene.dims))
+        c = crop_scene(scene, origin, size)
+        assert c.dims == size and c.extent_m == [8 * s] * 3
+        x0, y0, z0 = origin
+        assert torch.equal(c.labels, scene.labels[x0:x0 + 8, y0:y0 + 8, z0:z0 + 8])
+        assert torch.equal(c.normals, scene.normals[:, x0:x0 + 8, y0:y0 + 8, z0:z0 + 8])
+        # The crop holds a contact voxel and exactly the grasps whose contact lies in the box.
+        assert (c.labels == 1).any()
+        v = torch.floor(scene.contact / s).long()
+        inside = ((v >= torch.tensor(origin)) & (v < torch.tensor(origin) + 8)).all(1)
+        assert len(c.contact) == int(inside.sum()) > 0
+        seen += len(c.contact)
+        # Each kept contact sits in the same voxel of the crop as of the scene: label and normal agree.
+        vc = torch.floor(c.contact / s).long()
+        assert torch.equal(vc + torch.tensor(origin), v[inside])
+        assert (c.labels[vc[:, 0], vc[:, 1], vc[:, 2]] == 1).all()
+        assert torch.equal(c.normals[:, vc[:, 0], vc[:, 1], vc[:, 2]], scene.normals[:, v[inside, 0], v[inside, 1],
+                                                                                     v[inside, 2]])
+        assert torch.equal(c.baseline, scene.baseline[inside]) and torch.equal(c.width, scene.width[inside])
+        assert torch.equal(c.collision_free, scene.collision_free[inside])
+    assert seen > 0
+    # The same generator seed gives the same crop.
+    assert crop_origin(scene, size, torch.Generator().manual_seed(5)) == crop_origin(
+        scene, size, torch.Generator().manual_seed(5))
+    with pytest.raises(ValueError, match="leaves the grid"):
+        crop_scene(scene, [10, 0, 0], size)
+
+
+def test_crop_sizes_are_checked_against_grid_and_levels(tiny_cfg):
+    from psgrasp_training.config import ConfigError
+
+    cfg = tiny_cfg()
+    cfg.data.crop = [8, 8, 8]
+    cfg.validate()
+    for bad in ([8, 8], [8, 8, 32], [8, 8, 7]):
+        cfg.data.crop = bad
+        with pytest.raises(ConfigError, match="data.crop"):
+            cfg.validate()
