@@ -57,6 +57,55 @@ fn good_grasp_lifts_a_box_and_removes_it() {
     );
 }
 
+/// The pads must not sink into what they hold: with soft contacts (120 Hz) the fingers closed
+/// through plates under 10 mm thick and a held plate read as "nothing held".
+#[test]
+fn thin_plates_are_held_at_their_thickness() {
+    let franka = psgrasp_geometry::grippers::named("franka").unwrap();
+    for thickness in [0.003f32, 0.005, 0.008, 0.02] {
+        let scene = boxes_on_floor(&[([thickness / 2.0, 0.02, 0.025], [0.0, 0.0])]);
+        let ex = execute_grasp(
+            &scene,
+            &MeshLibrary::default(),
+            &franka,
+            &top_down(&scene, 0, 0.06),
+            &close_after_touch(),
+        )
+        .unwrap();
+        assert_eq!(
+            ex.report.outcome,
+            GraspOutcome::Success,
+            "{thickness}: {:?}",
+            ex.report
+        );
+        assert!(
+            (ex.report.final_opening_m - thickness).abs() < 0.0005,
+            "a {thickness} m plate held at {} m",
+            ex.report.final_opening_m
+        );
+    }
+    // The old soft contacts close through the 5 mm plate.
+    let soft = ExecutionConfig {
+        contact_natural_frequency_hz: 120.0,
+        ..close_after_touch()
+    };
+    let scene = boxes_on_floor(&[([0.0025, 0.02, 0.025], [0.0, 0.0])]);
+    let ex = execute_grasp(
+        &scene,
+        &MeshLibrary::default(),
+        &franka,
+        &top_down(&scene, 0, 0.06),
+        &soft,
+    )
+    .unwrap();
+    assert_eq!(
+        ex.report.outcome,
+        GraspOutcome::NothingHeld,
+        "{:?}",
+        ex.report
+    );
+}
+
 #[test]
 fn object_wider_than_the_opening_fails_on_approach() {
     // 100 mm across the baseline: the fingers land on top of the box instead of wedging it.
