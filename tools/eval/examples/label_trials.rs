@@ -1,0 +1,138 @@
+//! Executes a random sample of the labeler's collision-free grasps on test-set scenes and prints
+//! the success rate by contact angle and width: which labels the simulated hand can hold.
+//! `cargo run --release -p psgrasp-eval --example label_trials -- [LEVEL] [SCENES] [GRASPS_PER_SCENE]`
+use psgrasp_datagen::labels::generate_labels;
+use psgrasp_datagen::Difficulty;
+use psgrasp_eval::{execute_grasp, GraspCommand, GraspOutcome, ProtocolConfig, TestSet};
+
+/// One trial: largest contact angle to the baseline (°), width (mm), random-URDF target, success.
+type Trial = (f32, f32, bool, bool);
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let level: Difficulty = match args.get(1).map(String::as_str).unwrap_or("medium") {
+        "easy" => Difficulty::Easy,
+        "challenging" => Difficulty::Challenging,
+        _ => Difficulty::Medium,
+    };
+    let scenes: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(5);
+    let per_scene: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(40);
+    let text = std::fs::read_to_string("config/eval-protocol-franka-fingertip.toml").unwrap();
+    let cfg: ProtocolConfig = toml::from_str(&text).unwrap();
+    let mesh_dir =
+        std::path::PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/psgrasp/objects");
+    let set = TestSet::open(std::path::Path::new("data/testset"), &mesh_dir).unwrap();
+    let gripper = cfg.scenes.cell.gripper;
+    let mut rows: Vec<Trial> = Vec::new();
+    let mut outcomes = std::collections::BTreeMap::new();
+    for i in 0..scenes {
+        let scene = set.scene(level, i).unwrap();
+        let camera = psgrasp_sim::default_camera(scene.bin(), cfg.scenes.intrinsics);
+        let rendering = scene.render(&camera);
+        let labels =
+            generate_labels(&scene, &camera, &rendering, &gripper, &cfg.scenes.labels, i).labels;
+        let free: Vec<(usize, usize)> = labels
+            .iter()
+            .enumerate()
+            .flat_map(|(k, l)| {
+                (0..l.collision_free.len())
+                    .filter(|&a| l.collision_free[a])
+                    .map(move |a| (k, a))
+            })
+            .collect();
+        let n = per_scene.min(free.len());
+        for j in 0..n {
+            // Evenly spread over the labels (they come object by object).
+            let (k, a) = free[j * free.len() / n.max(1)];
+            let l = &labels[k];
+            let g = l.grasp(a);
+            let cmd = GraspCommand {
+                workspace_from_gripper: g.workspace_from_gripper(),
+                opening_m: gripper.max_opening_m,
+                pregrasp_distance_m: 0.08,
+            };
+            let ex = execute_grasp(&scene, &set.meshes, &gripper, &cmd, &cfg.execution).unwrap();
+            *outcomes
+                .entry(format!("{:?}", ex.report.outcome))
+                .or_insert(0usize) += 1;
+            if ex.report.outcome == GraspOutcome::PregraspCollision {
+                continue;
+            }
+            let ang = |n: &nalgebra::Vector3<f32>, b: nalgebra::Vector3<f32>| {
+                b.dot(n).abs().clamp(0.0, 1.0).acos().to_degrees()
+            };
+            let theta = ang(&l.contact_normal, l.baseline).max(ang(&l.second_normal, l.baseline));
+            let mesh = scene.objects()[l.object as usize]
+                .spec
+                .name
+                .starts_with("random");
+            if std::env::var_os("TRIALS_VERBOSE").is_some() {
+                println!(
+                    "w {:5.1} mm θ {:4.1}° {:?} touch {:?} open {:.1} mm lifted {:?} obj {} z {:.3}",
+                    l.width * 1e3,
+                    theta,
+                    ex.report.outcome,
+                    ex.report.approach_touch.as_ref().map(|t| (format!("{:?}", t.part), (t.short_of_grasp_m * 1e3).round())),
+                    ex.report.final_opening_m * 1e3,
+                    ex.report.lifted_objects,
+                    l.object,
+                    g.center().z
+                );
+            }
+            rows.push((
+                theta,
+                l.width * 1e3,
+                mesh,
+                ex.report.outcome == GraspOutcome::Success,
+            ));
+        }
+        eprintln!(
+            "scene {i}: {} labels, {} trials so far",
+            labels.len(),
+            rows.len()
+        );
+    }
+    println!("outcomes {outcomes:?} (pre-grasp collisions are left out below)");
+    let show = |name: &str, key: &dyn Fn(&Trial) -> usize, edges: &[&str]| {
+        println!("{name}");
+        for (b, e) in edges.iter().enumerate() {
+            let sel: Vec<_> = rows.iter().filter(|r| key(r) == b).collect();
+            let ok = sel.iter().filter(|r| r.3).count();
+            if !sel.is_empty() {
+                println!(
+                    "  {e:>10}: {ok:4} / {:4} = {:5.1} %",
+                    sel.len(),
+                    100.0 * ok as f32 / sel.len() as f32
+                );
+            }
+        }
+    };
+    show(
+        "by largest contact angle to the baseline",
+        &|r| ((r.0 / 10.0) as usize).min(5),
+        &["0-10°", "10-20°", "20-30°", "30-40°", "40-50°", "50°+"],
+    );
+    show(
+        "by width",
+        &|r| ((r.1 / 10.0) as usize).min(7),
+        &[
+            "0-10mm", "10-20", "20-30", "30-40", "40-50", "50-60", "60-70", "70+",
+        ],
+    );
+    show(
+        "random URDF (1) vs other (0)",
+        &|r| r.2 as usize,
+        &["other", "random"],
+    );
+    show(
+        "narrow (<20 mm) by angle <30° (0) / >=30° (1)",
+        &|r| {
+            if r.1 < 20.0 {
+                (r.0 >= 30.0) as usize
+            } else {
+                9
+            }
+        },
+        &["<30°", ">=30°"],
+    );
+}
