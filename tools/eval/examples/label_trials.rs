@@ -5,8 +5,9 @@ use psgrasp_datagen::labels::generate_labels;
 use psgrasp_datagen::Difficulty;
 use psgrasp_eval::{execute_grasp, GraspCommand, GraspOutcome, ProtocolConfig, TestSet};
 
-/// One trial: largest contact angle to the baseline (°), width (mm), random-URDF target, success.
-type Trial = (f32, f32, bool, bool);
+/// One trial: largest contact angle to the baseline (°), width (mm), random-URDF target, success,
+/// distance of the object's origin from the grasp axis (mm).
+type Trial = (f32, f32, bool, bool, f32);
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -79,11 +80,19 @@ fn main() {
                     g.center().z
                 );
             }
+            // The object's origin (its bounding-box centre) from the line through the contacts.
+            let origin = scene.objects()[l.object as usize]
+                .workspace_from_object
+                .translation
+                .vector;
+            let d = origin - l.contact.coords;
+            let off_axis = (d - l.baseline * d.dot(&l.baseline)).norm() * 1e3;
             rows.push((
                 theta,
                 l.width * 1e3,
                 mesh,
                 ex.report.outcome == GraspOutcome::Success,
+                off_axis,
             ));
         }
         eprintln!(
@@ -123,6 +132,11 @@ fn main() {
         "random URDF (1) vs other (0)",
         &|r| r.2 as usize,
         &["other", "random"],
+    );
+    show(
+        "by distance of the object's centre from the grasp axis",
+        &|r| ((r.4 / 10.0) as usize).min(5),
+        &["0-10mm", "10-20", "20-30", "30-40", "40-50", "50+"],
     );
     show(
         "narrow (<20 mm) by angle <30° (0) / >=30° (1)",
