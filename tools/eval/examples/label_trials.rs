@@ -1,4 +1,4 @@
-//! Executes a random sample of the labeler's collision-free grasps on test-set scenes and prints
+//! Executes an evenly spread sample of the labeler's collision-free grasps on test-set scenes and prints
 //! the success rate by contact angle and width: which labels the simulated hand can hold.
 //! `cargo run --release -p psgrasp-eval --example label_trials -- [LEVEL] [SCENES] [GRASPS_PER_SCENE]`
 use psgrasp_datagen::labels::generate_labels;
@@ -8,6 +8,16 @@ use psgrasp_eval::{execute_grasp, GraspCommand, GraspOutcome, ProtocolConfig, Te
 /// One trial: largest contact angle to the baseline (°), width (mm), random-URDF target, success,
 /// distance of the object's origin from the grasp axis (mm).
 type Trial = (f32, f32, bool, bool, f32);
+
+/// Angle between a contact normal and the baseline, folded to [0°, 90°].
+fn contact_angle_deg(normal: &nalgebra::Vector3<f32>, baseline: &nalgebra::Vector3<f32>) -> f32 {
+    baseline
+        .dot(normal)
+        .abs()
+        .clamp(0.0, 1.0)
+        .acos()
+        .to_degrees()
+}
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -50,7 +60,7 @@ fn main() {
             let cmd = GraspCommand {
                 workspace_from_gripper: g.workspace_from_gripper(),
                 opening_m: gripper.max_opening_m,
-                pregrasp_distance_m: 0.08,
+                pregrasp_distance_m: cfg.cell().selection.clearance.pregrasp_distance_m,
             };
             let ex = execute_grasp(&scene, &set.meshes, &gripper, &cmd, &cfg.execution).unwrap();
             *outcomes
@@ -59,10 +69,8 @@ fn main() {
             if ex.report.outcome == GraspOutcome::PregraspCollision {
                 continue;
             }
-            let ang = |n: &nalgebra::Vector3<f32>, b: nalgebra::Vector3<f32>| {
-                b.dot(n).abs().clamp(0.0, 1.0).acos().to_degrees()
-            };
-            let theta = ang(&l.contact_normal, l.baseline).max(ang(&l.second_normal, l.baseline));
+            let theta = contact_angle_deg(&l.contact_normal, &l.baseline)
+                .max(contact_angle_deg(&l.second_normal, &l.baseline));
             let mesh = scene.objects()[l.object as usize]
                 .spec
                 .name

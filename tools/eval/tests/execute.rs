@@ -62,16 +62,13 @@ fn good_grasp_lifts_a_box_and_removes_it() {
 #[test]
 fn thin_plates_are_held_at_their_thickness() {
     let franka = psgrasp_geometry::grippers::named("franka").unwrap();
-    for thickness in [0.003f32, 0.005, 0.008, 0.02] {
+    let grasp_plate = |thickness: f32, cfg: &ExecutionConfig| {
         let scene = boxes_on_floor(&[([thickness / 2.0, 0.02, 0.025], [0.0, 0.0])]);
-        let ex = execute_grasp(
-            &scene,
-            &MeshLibrary::default(),
-            &franka,
-            &top_down(&scene, 0, 0.06),
-            &close_after_touch(),
-        )
-        .unwrap();
+        let cmd = top_down(&scene, 0, 0.06);
+        execute_grasp(&scene, &MeshLibrary::default(), &franka, &cmd, cfg).unwrap()
+    };
+    for thickness in [0.003f32, 0.005, 0.008, 0.02] {
+        let ex = grasp_plate(thickness, &close_after_touch());
         assert_eq!(
             ex.report.outcome,
             GraspOutcome::Success,
@@ -89,15 +86,7 @@ fn thin_plates_are_held_at_their_thickness() {
         contact_natural_frequency_hz: 120.0,
         ..close_after_touch()
     };
-    let scene = boxes_on_floor(&[([0.0025, 0.02, 0.025], [0.0, 0.0])]);
-    let ex = execute_grasp(
-        &scene,
-        &MeshLibrary::default(),
-        &franka,
-        &top_down(&scene, 0, 0.06),
-        &soft,
-    )
-    .unwrap();
+    let ex = grasp_plate(0.005, &soft);
     assert_eq!(
         ex.report.outcome,
         GraspOutcome::NothingHeld,

@@ -15,7 +15,7 @@ pub struct ExecutionConfig {
     /// Natural frequency of the contact constraints, Hz. Rapier's default 30 Hz lets objects
     /// sink into the fingers and slip; at 120 Hz the 20 N pads still sink 1–4 mm per side and
     /// close through plates under 10 mm thick, so a held thin part read as "nothing held"
-    /// (docs/evaluation.md, "Contact stiffness"). 1000 Hz holds a 3 mm plate at 2.7 mm.
+    /// (docs/evaluation.md, "Why the oracle misses"). 1000 Hz holds a 3 mm plate at 2.7 mm.
     pub contact_natural_frequency_hz: f32,
     /// Damping ratio of the contact constraints.
     pub contact_damping_ratio: f32,
