@@ -1,4 +1,4 @@
-"""Command line: ``python -m psgrasp_training {train,export,init,evaluate,profile,hitrate} ...``."""
+"""Command line: ``python -m psgrasp_training {train,export,init,evaluate,pickcheck,profile,hitrate} ...``."""
 
 from __future__ import annotations
 
@@ -46,6 +46,14 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--data", required=True, type=Path)
     v.add_argument("--checkpoint", default="latest.pt", help="file name under RUN/checkpoints")
     v.add_argument("--max-scenes", type=int, default=0)
+
+    k = sub.add_parser("pickcheck", help="the pick check (top picks against the labels) of a run's checkpoints")
+    k.add_argument("--run", required=True, type=Path)
+    k.add_argument("--data", required=True, type=Path)
+    k.add_argument("--checkpoint", nargs="+", default=["latest.pt"],
+                   help="file names under RUN/checkpoints, or `all` for every step_*.pt")
+    k.add_argument("--max-scenes", type=int, default=0)
+    k.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
 
     f = sub.add_parser("profile", help="time the phases of training steps (nothing saved)")
     f.add_argument("--config", required=True, type=Path)
@@ -113,6 +121,13 @@ def main(argv: list[str] | None = None) -> int:
             from .train import evaluate_run
 
             evaluate_run(args.run, args.data, args.checkpoint, args.max_scenes)
+        elif args.command == "pickcheck":
+            from .checkpoint import write_json
+            from .train import pick_check_run
+
+            results = pick_check_run(args.run, args.data, args.checkpoint, args.max_scenes)
+            if args.json is not None:
+                write_json(args.json, results)
         elif args.command == "profile":
             from .profile import profile_steps
 

@@ -23,6 +23,7 @@ from .export import export_model
 from .losses import (GraspIndex, contact_voxel_points, focal_loss, grasp_loss, grasp_targets,
                      predicted_voxel_points)
 from .model import CLASSES, GraspNet
+from .pickcheck import pick_check
 
 LOG_FIELDS = ["step", "loss", "label", "grasp", "baseline", "approach", "width", "quality", "collision", "points",
               "hit_rate", "lr", "seconds", "elapsed_s"]
@@ -213,7 +214,8 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
     IoU per class of the argmax label grid (summed over scenes); at training-rule points in true
     contact voxels (fixed seed per scene): baseline angle error = directed angle between ν and the
     closest neighbour baseline, width error = |w − that neighbour's width|, quality MAE of the
-    decoded q against the max neighbour quality, and the neighbour hit-rate.
+    decoded q against the max neighbour quality, and the neighbour hit-rate. ``picks``: the pick
+    check of :mod:`psgrasp_training.pickcheck` (what the evaluation would execute, against the labels).
     """
     net.eval()
     entries = ds.val_entries[: max_scenes] if max_scenes > 0 else ds.val_entries
@@ -259,6 +261,7 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             angles.append(best_ang)
             w_best = scene.width[idx.clamp(min=0).gather(1, best.unsqueeze(1)).squeeze(1)]
             width_err.append((out["width"][h] - w_best).abs() * 1000.0)
+    picks = pick_check(net, ds, cfg, max_scenes)
     net.train()
     iou = {name: float(inter[c] / union[c]) if union[c] > 0 else 0.0 for c, name in enumerate(CLASSES)}
 
@@ -269,7 +272,7 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             "width_error_mm": mean(width_err), "quality_mae": mean(q_err), "points": npts,
             "hit_rate": hits / npts if npts else 0.0, "kappa_mean": mean(kappas),
             "contact_precision": tp / n_pred if n_pred else 0.0, "contact_recall": tp / n_true if n_true else 0.0,
-            "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true}
+            "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true, "picks": picks}
 
 
 def _open_log(run_dir: Path, resume_step: int, fields: list[str] = LOG_FIELDS):
@@ -458,3 +461,24 @@ def evaluate_run(run_dir: Path, data: Path, checkpoint: str = "latest.pt", max_s
     val = evaluate(net, ds, cfg, device, max_scenes)
     log(f"validation of {run_dir} @ {state['step']}: {val}")
     return val
+
+
+def pick_check_run(run_dir: Path, data: Path, checkpoints: list[str], max_scenes: int = 0, log=print) -> dict:
+    """The pick check (:mod:`psgrasp_training.pickcheck`) of checkpoints of a run on its held-out
+    scenes; ``["all"]`` takes every ``step_*.pt``. Returns {checkpoint: {group: figures}}."""
+    if checkpoints == ["all"]:
+        checkpoints = sorted(p.name for p in (Path(run_dir) / "checkpoints").glob("step_*.pt"))
+    results = {}
+    for name in checkpoints:
+        state = load_checkpoint(run_dir, name)
+        cfg: Config = state["config"]
+        setup_torch(cfg)
+        ds = SceneDataset(data, cfg)
+        net = GraspNet(cfg)
+        net.load_state_dict(state["model"])
+        res = pick_check(net, ds, cfg, max_scenes)
+        results[name] = {"step": state["step"], **res}
+        row = "  ".join(f"{g} P@k {v['precision_at_k']:.3f} top1 {v['top1']:.2f} none {v['no_pick']:.2f}"
+                        for g, v in res.items() if g != "all")
+        log(f"{name} (step {state['step']}): all P@k {res['all']['precision_at_k']:.3f}  {row}")
+    return results
