@@ -54,6 +54,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="file names under RUN/checkpoints, or `all` for every step_*.pt")
     k.add_argument("--max-scenes", type=int, default=0)
     k.add_argument("--json", type=Path, default=None, help="also write the figures to this JSON file")
+    k.add_argument("--all-scenes", action="store_true",
+                   help="check every scene of --data (a dataset made for checking), not the run's held-out split")
 
     f = sub.add_parser("profile", help="time the phases of training steps (nothing saved)")
     f.add_argument("--config", required=True, type=Path)
@@ -125,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
             from .checkpoint import write_json
             from .train import pick_check_run
 
-            results = pick_check_run(args.run, args.data, args.checkpoint, args.max_scenes)
+            results = pick_check_run(args.run, args.data, args.checkpoint, args.max_scenes,
+                                     all_scenes=args.all_scenes)
             if args.json is not None:
                 write_json(args.json, results)
         elif args.command == "profile":

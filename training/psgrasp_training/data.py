@@ -44,6 +44,8 @@ class Scene:
     voxel_size_m: float = 0.009
     index: int = 0
     meta: dict[str, Any] = field(default_factory=dict)
+    #: [G] int64 object index of each grasp (`grasp_object`; None when the file has none).
+    object: torch.Tensor | None = None
 
     @property
     def dims(self) -> list[int]:
@@ -77,6 +79,7 @@ def read_scene(path: str | Path, index: int = 0) -> Scene:
             if missing:
                 raise DatasetError(f"{path}: missing tensor(s) {missing}")
             arrays = {k: f.get_tensor(k) for k in SCENE_TENSORS}
+            grasp_object = f.get_tensor("grasp_object") if "grasp_object" in keys else None
             meta = json.loads((f.metadata() or {}).get("psgrasp_scene", "{}"))
     except DatasetError:
         raise
@@ -108,6 +111,8 @@ def read_scene(path: str | Path, index: int = 0) -> Scene:
         voxel_size_m=voxel,
         index=index,
         meta=meta,
+        object=torch.from_numpy(grasp_object.astype(np.int64)) if grasp_object is not None and len(grasp_object) == g
+        else None,
     )
 
 
@@ -167,6 +172,7 @@ def crop_scene(scene: Scene, origin: list[int], size: list[int]) -> Scene:
         width=scene.width[inside],
         quality=scene.quality[inside],
         collision_free=scene.collision_free[inside],
+        object=scene.object[inside] if scene.object is not None else None,
     )
 
 

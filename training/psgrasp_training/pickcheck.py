@@ -29,6 +29,7 @@ from .config import Config
 from .data import SceneDataset
 from .decode import (approach_vectors, class_probabilities, contact_voxels, decode, sample_features,
                      subvoxel_points)
+from .losses import GraspIndex
 from .model import GraspNet
 
 
@@ -58,16 +59,36 @@ def _group(objects: int, groups) -> str:
     return groups[-1][0]
 
 
-def scene_picks(net: GraspNet, normals: torch.Tensor, extent_m: list[float], voxel_size_m: float,
-                contact_probability: float, approach_depth_m: float, pc: PickCheckConfig):
-    """The selection's best picks of one grid: (points, baselines, widths, approach vectors, q),
-    at most pc.k, ordered by q."""
+@dataclass
+class Candidates:
+    """The configurations the selection would consider, best q first (one approach each)."""
+
+    points: torch.Tensor  #: [N, 3] contact points
+    baselines: torch.Tensor  #: [N, 3]
+    widths: torch.Tensor  #: [N]
+    approaches: torch.Tensor  #: [N, 3] the first passing approach of the best `approaches_per_configuration`
+    quality: torch.Tensor  #: [N] q, descending
+
+    def __len__(self) -> int:
+        return len(self.quality)
+
+    def take(self, index: torch.Tensor | list[int]) -> "Candidates":
+        """A subset, in the order of `index`."""
+        index = torch.as_tensor(index, dtype=torch.int64)
+        return Candidates(self.points[index], self.baselines[index], self.widths[index], self.approaches[index],
+                          self.quality[index])
+
+
+def scene_candidates(net: GraspNet, normals: torch.Tensor, extent_m: list[float], voxel_size_m: float,
+                     contact_probability: float, approach_depth_m: float, pc: PickCheckConfig) -> Candidates:
+    """Every configuration of one grid that passes the selection's thresholds (q, the best
+    approaches' σ inside the tilt cone), ordered by q."""
     device = next(net.parameters()).device
     logits, encs = net.unet(normals.to(device).unsqueeze(0))
     probs = class_probabilities(logits)
     dims = list(normals.shape[1:])
     voxels = contact_voxels(probs[0, 1].cpu(), contact_probability, pc.max_contact_voxels)
-    empty = (torch.zeros(0, 3), torch.zeros(0, 3), torch.zeros(0), torch.zeros(0, 3), torch.zeros(0))
+    empty = Candidates(torch.zeros(0, 3), torch.zeros(0, 3), torch.zeros(0), torch.zeros(0, 3), torch.zeros(0))
     if voxels.numel() == 0:
         return empty
     points = subvoxel_points(voxels, dims, voxel_size_m).to(device)
@@ -84,64 +105,108 @@ def scene_picks(net: GraspNet, normals: torch.Tensor, extent_m: list[float], vox
     idx = keep.nonzero().reshape(-1)
     if idx.numel() == 0:
         return empty
-    approach_index = order[idx, first[idx]]
-    approach = d.approach_vectors[idx, approach_index]
-    tcp = d.points[idx] + 0.5 * d.width[idx].unsqueeze(-1) * d.baseline[idx]
+    approach = d.approach_vectors[idx, order[idx, first[idx]]]
     ranked = torch.argsort(d.quality[idx], descending=True, stable=True)
+    idx, approach = idx[ranked], approach[ranked]
+    return Candidates(d.points[idx], d.baseline[idx], d.width[idx], approach, d.quality[idx])
+
+
+def top_picks(c: Candidates, pc: PickCheckConfig) -> Candidates:
+    """The best `pc.k` candidates whose TCPs keep the pick spacing."""
+    tcp = c.points + 0.5 * c.widths.unsqueeze(-1) * c.baselines
     chosen: list[int] = []
-    for r in ranked.tolist():
-        if all(float((tcp[r] - tcp[c]).norm()) >= pc.pick_spacing_m for c in chosen):
+    for r in range(len(c)):
+        if all(float((tcp[r] - tcp[j]).norm()) >= pc.pick_spacing_m for j in chosen):
             chosen.append(r)
             if len(chosen) == pc.k:
                 break
-    sel = idx[chosen]
-    return d.points[sel], d.baseline[sel], d.width[sel], approach[chosen], d.quality[sel]
+    return c.take(chosen)
+
+
+def scene_picks(net: GraspNet, normals: torch.Tensor, extent_m: list[float], voxel_size_m: float,
+                contact_probability: float, approach_depth_m: float, pc: PickCheckConfig):
+    """The selection's best picks of one grid: (points, baselines, widths, approach vectors, q),
+    at most pc.k, ordered by q."""
+    p = top_picks(scene_candidates(net, normals, extent_m, voxel_size_m, contact_probability, approach_depth_m, pc),
+                  pc)
+    return p.points, p.baselines, p.widths, p.approaches, p.quality
+
+
+def matched_labels(scene, points, baselines, widths, approaches, pc: PickCheckConfig,
+                   max_neighbours: int = 32, chunk: int = 2048) -> torch.Tensor:
+    """[N] index of a labelled collision-free grasp each pick matches (−1: none): contact within
+    match_radius_m (the nearest `max_neighbours` labels), baseline within match_angle_deg, width
+    within match_width_m, and a label approach within match_approach_deg of the pick's free."""
+    n = len(points)
+    out = torch.full((n,), -1, dtype=torch.int64)
+    if n == 0 or len(scene.contact) == 0:
+        return out
+    index = GraspIndex(scene.contact, pc.match_radius_m)
+    cos_angle = math.cos(math.radians(pc.match_angle_deg))
+    cos_app = math.cos(math.radians(pc.match_approach_deg))
+    for s in range(0, n, chunk):
+        e = min(n, s + chunk)
+        nb = index.query(points[s:e].float(), pc.match_radius_m, max_neighbours).idx  # [c, K]
+        valid = nb >= 0
+        g = nb.clamp(min=0)
+        ok = valid & ((scene.baseline[g] * baselines[s:e, None]).sum(-1) >= cos_angle)
+        ok &= (scene.width[g] - widths[s:e, None]).abs() <= pc.match_width_m
+        if not bool(ok.any()):
+            continue
+        rows, cols = ok.nonzero(as_tuple=True)
+        gt = g[rows, cols]
+        gt_app = approach_vectors(scene.baseline[gt].to(torch.float64)).to(torch.float32)  # [P, 18, 3]
+        close = (gt_app * approaches[s:e][rows, None]).sum(-1) >= cos_app
+        hit = (close & (scene.collision_free[gt] > 0.5)).any(1)
+        # The first (nearest) matching label per pick.
+        for r, lab in zip(rows[hit].tolist(), gt[hit].tolist()):
+            if out[s + r] < 0:
+                out[s + r] = lab
+    return out
 
 
 def pick_matches(scene, points, baselines, widths, approaches, pc: PickCheckConfig) -> list[bool]:
     """Whether each pick matches a labelled collision-free grasp of the scene."""
-    result = []
-    if len(scene.contact) == 0:
-        return [False] * len(points)
-    cos_angle = math.cos(math.radians(pc.match_angle_deg))
-    cos_app = math.cos(math.radians(pc.match_approach_deg))
-    for p, b, w, a in zip(points, baselines, widths, approaches):
-        near = ((scene.contact - p).norm(dim=1) <= pc.match_radius_m).nonzero().reshape(-1)
-        if near.numel():
-            near = near[((scene.baseline[near] * b).sum(1) >= cos_angle)
-                        & ((scene.width[near] - w).abs() <= pc.match_width_m)]
-        matched = False
-        if near.numel():
-            gt_app = approach_vectors(scene.baseline[near].to(torch.float64)).to(torch.float32)  # [n, 18, 3]
-            close = (gt_app * a).sum(-1) >= cos_app  # [n, 18]
-            matched = bool((close & (scene.collision_free[near] > 0.5)).any())
-        result.append(matched)
-    return result
+    return (matched_labels(scene, points, baselines, widths, approaches, pc) >= 0).tolist()
 
 
 @torch.no_grad()
 def pick_check(net: GraspNet, ds: SceneDataset, cfg: Config, max_scenes: int = 0,
-               pc: PickCheckConfig | None = None) -> dict:
-    """The pick check over the held-out scenes (see the module doc)."""
+               pc: PickCheckConfig | None = None, all_scenes: bool = False) -> dict:
+    """The pick check over the held-out scenes (see the module doc); `all_scenes`: over every
+    scene of the dataset (one generated for checking only, e.g. test objects on an unreported seed)."""
     pc = pc or PickCheckConfig()
     was_training = net.training
     net.eval()
-    entries = ds.val_entries[:max_scenes] if max_scenes > 0 else ds.val_entries
+    entries = sorted(ds.train_entries + ds.val_entries, key=lambda e: e["index"]) if all_scenes else ds.val_entries
+    entries = entries[:max_scenes] if max_scenes > 0 else entries
     stats: dict[str, dict[str, float]] = {}
     for entry in entries:
         scene = ds.scene(entry)
         objects = int(entry.get("objects", 0))
-        picks = scene_picks(net, scene.normals, scene.extent_m, scene.voxel_size_m, cfg.export.contact_probability,
-                            cfg.grid.approach_depth_m, pc)
-        matches = pick_matches(scene, *picks[:4], pc)
+        cands = scene_candidates(net, scene.normals, scene.extent_m, scene.voxel_size_m,
+                                 cfg.export.contact_probability, cfg.grid.approach_depth_m, pc)
+        top = top_picks(cands, pc)
+        matches = pick_matches(scene, top.points, top.baselines, top.widths, top.approaches, pc)
+        # Object recall: objects with a collision-free label that some candidate matches.
+        labelled = covered = 0
+        if scene.object is not None and len(scene.contact):
+            free = scene.collision_free.sum(1) > 0
+            labelled = int(torch.unique(scene.object[free]).numel())
+            hit = matched_labels(scene, cands.points, cands.baselines, cands.widths, cands.approaches, pc)
+            covered = int(torch.unique(scene.object[hit[hit >= 0]]).numel())
         for name in (_group(objects, pc.groups), "all"):
-            s = stats.setdefault(name, {"scenes": 0, "matched": 0, "top1": 0, "no_pick": 0})
+            s = stats.setdefault(name, {"scenes": 0, "matched": 0, "top1": 0, "no_pick": 0, "labelled": 0,
+                                        "covered": 0})
             s["scenes"] += 1
             s["matched"] += sum(matches)
             s["top1"] += int(bool(matches) and matches[0])
             s["no_pick"] += int(not matches)
+            s["labelled"] += labelled
+            s["covered"] += covered
     if was_training:
         net.train()
     return {name: {"scenes": s["scenes"], "precision_at_k": s["matched"] / (pc.k * s["scenes"]),
-                   "top1": s["top1"] / s["scenes"], "no_pick": s["no_pick"] / s["scenes"]}
+                   "top1": s["top1"] / s["scenes"], "no_pick": s["no_pick"] / s["scenes"],
+                   "object_recall": s["covered"] / s["labelled"] if s["labelled"] else 0.0}
             for name, s in stats.items()}

@@ -463,9 +463,11 @@ def evaluate_run(run_dir: Path, data: Path, checkpoint: str = "latest.pt", max_s
     return val
 
 
-def pick_check_run(run_dir: Path, data: Path, checkpoints: list[str], max_scenes: int = 0, log=print) -> dict:
+def pick_check_run(run_dir: Path, data: Path, checkpoints: list[str], max_scenes: int = 0, log=print,
+                   all_scenes: bool = False) -> dict:
     """The pick check (:mod:`psgrasp_training.pickcheck`) of checkpoints of a run on its held-out
-    scenes; ``["all"]`` takes every ``step_*.pt``. Returns {checkpoint: {group: figures}}."""
+    scenes (`all_scenes`: on every scene of `data`); ``["all"]`` takes every ``step_*.pt``.
+    Returns {checkpoint: {group: figures}}."""
     if checkpoints == ["all"]:
         checkpoints = sorted(p.name for p in (Path(run_dir) / "checkpoints").glob("step_*.pt"))
     results = {}
@@ -476,9 +478,9 @@ def pick_check_run(run_dir: Path, data: Path, checkpoints: list[str], max_scenes
         ds = SceneDataset(data, cfg)
         net = GraspNet(cfg)
         net.load_state_dict(state["model"])
-        res = pick_check(net, ds, cfg, max_scenes)
+        res = pick_check(net, ds, cfg, max_scenes, all_scenes=all_scenes)
         results[name] = {"step": state["step"], **res}
-        row = "  ".join(f"{g} P@k {v['precision_at_k']:.3f} top1 {v['top1']:.2f} none {v['no_pick']:.2f}"
-                        for g, v in res.items() if g != "all")
+        row = "  ".join(f"{g} P@k {v['precision_at_k']:.3f} top1 {v['top1']:.2f} none {v['no_pick']:.2f} "
+                        f"objects {v['object_recall']:.2f}" for g, v in res.items() if g != "all")
         log(f"{name} (step {state['step']}): all P@k {res['all']['precision_at_k']:.3f}  {row}")
     return results

@@ -101,3 +101,27 @@ def test_pick_check_reports_every_group_and_runs_on_checkpoints(box_dataset, tin
     net.load_state_dict(load_checkpoint(run, "step_0000010.pt")["model"])
     state = load_checkpoint(run, "step_0000010.pt")
     assert pick_check(net, ds, state["config"]) == {k: v for k, v in results["step_0000010.pt"].items() if k != "step"}
+
+
+def test_grasp_objects_are_read_and_stay_aligned_through_crops(box_dataset, tiny_cfg):
+    from psgrasp_training.data import crop_scene
+    from psgrasp_training.pickcheck import matched_labels
+
+    _, _, scene = _first_scene(box_dataset, tiny_cfg)
+    assert scene.object is not None and scene.object.shape == scene.width.shape
+    # Tag every grasp with its own index so that alignment is visible after the crop.
+    tagged = type(scene)(**{**scene.__dict__, "object": torch.arange(len(scene.width))})
+    cropped = crop_scene(tagged, [0, 0, 0], [8, 16, 16])
+    assert 0 < len(cropped.object) < len(tagged.object)
+    origin = torch.zeros(3)
+    for i, tag in enumerate(cropped.object.tolist()):
+        assert torch.allclose(cropped.contact[i] + origin, tagged.contact[tag])
+        assert torch.equal(cropped.baseline[i], tagged.baseline[tag])
+    # A pick exactly at a label matches a label near it, whose object the pick is credited to.
+    g = 3
+    free = int(tagged.collision_free[g].argmax())
+    approach = approach_vectors(tagged.baseline[g].to(torch.float64)).to(torch.float32)[free]
+    m = matched_labels(tagged, tagged.contact[g:g + 1], tagged.baseline[g:g + 1], tagged.width[g:g + 1],
+                       approach[None], PickCheckConfig())
+    assert int(m[0]) >= 0
+    assert float((tagged.contact[int(m[0])] - tagged.contact[g]).norm()) <= PickCheckConfig().match_radius_m
