@@ -153,6 +153,24 @@ impl GripperModel {
         })
     }
 
+    /// The stretches of the two pads' closing paths between `near_m` and `far_m` beyond the
+    /// contact planes of a grasp of `width_m` (x = ±width/2), gripper frame, left then right:
+    /// what a pad sweeps through just before it reaches its contact. A grasped object reaching
+    /// into them is touched elsewhere first. Empty boxes (zero x extent) when `far_m ≤ near_m`.
+    pub fn pad_sweep_regions(&self, width_m: f32, near_m: f32, far_m: f32) -> [OrientedBox; 2] {
+        let [_, fw, fl] = self.finger_size_m;
+        let half = 0.5 * (far_m - near_m).max(0.0);
+        let x = 0.5 * width_m + near_m + half;
+        [-1.0f32, 1.0].map(|sign| OrientedBox {
+            parent_from_box: Isometry3::translation(
+                sign * x,
+                0.0,
+                self.tip_beyond_tcp_m - 0.5 * fl,
+            ),
+            half_extents: Vector3::new(half, 0.5 * fw, 0.5 * fl),
+        })
+    }
+
     /// The closing region between the finger pads (where the object must be), gripper frame.
     pub fn closing_region(&self, opening_m: f32) -> OrientedBox {
         let [_, fw, fl] = self.finger_size_m;
@@ -184,6 +202,26 @@ impl GripperModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pad_sweeps_lie_between_the_contact_planes_and_the_fingers() {
+        let g = GripperModel::default();
+        let [left, right] = g.pad_sweep_regions(0.03, 0.002, 0.01);
+        let [_, finger, _] = g.boxes_in_gripper_frame(0.05);
+        for (b, sign) in [(left, -1.0f32), (right, 1.0)] {
+            let x = b.parent_from_box.translation.x;
+            // From 2 mm to 10 mm beyond the contact plane at ±15 mm, as wide and long as a pad.
+            assert!((sign * x - b.half_extents.x - 0.017).abs() < 1e-6);
+            assert!((sign * x + b.half_extents.x - 0.025).abs() < 1e-6);
+            assert_eq!(b.half_extents.yz(), finger.half_extents.yz());
+            assert_eq!(
+                b.parent_from_box.translation.z,
+                finger.parent_from_box.translation.z
+            );
+        }
+        let [empty, _] = g.pad_sweep_regions(0.03, 0.01, 0.005);
+        assert_eq!(empty.half_extents.x, 0.0);
+    }
 
     #[test]
     fn fingers_straddle_the_tcp() {

@@ -6,8 +6,38 @@ use psgrasp_datagen::Difficulty;
 use psgrasp_eval::{execute_grasp, GraspCommand, GraspOutcome, ProtocolConfig, TestSet};
 
 /// One trial: largest contact angle to the baseline (°), width (mm), random-URDF target, success,
-/// distance of the object's origin from the grasp axis (mm).
-type Trial = (f32, f32, bool, bool, f32);
+/// distance of the object's origin from the grasp axis (mm), the nearest distance beyond the
+/// contact planes from which the pads' closing paths are free of the target (mm, band class).
+type Trial = (f32, f32, bool, bool, f32, usize);
+
+/// Band edges (mm beyond the contact planes) tried by `pad_clear_class`.
+const BAND_MM: [f32; 6] = [0.5, 1.0, 2.0, 3.0, 5.0, 8.0];
+
+/// The index of the smallest `BAND_MM` from which the pads' paths up to 10 mm beyond the
+/// contacts are free of the target object (`BAND_MM.len()`: none).
+fn pad_clear_class(
+    scene: &psgrasp_sim::Scene,
+    gripper: &psgrasp_geometry::GripperModel,
+    pose: &nalgebra::Isometry3<f32>,
+    width: f32,
+    object: usize,
+) -> usize {
+    BAND_MM
+        .iter()
+        .position(|near| {
+            gripper
+                .pad_sweep_regions(width, near * 1e-3, 0.010)
+                .iter()
+                .all(|b| {
+                    let b = psgrasp_geometry::OrientedBox {
+                        parent_from_box: pose * b.parent_from_box,
+                        half_extents: b.half_extents,
+                    };
+                    !scene.box_hits_object(&b, object)
+                })
+        })
+        .unwrap_or(BAND_MM.len())
+}
 
 /// Angle between a contact normal and the baseline, folded to [0°, 90°].
 fn contact_angle_deg(normal: &nalgebra::Vector3<f32>, baseline: &nalgebra::Vector3<f32>) -> f32 {
@@ -95,12 +125,20 @@ fn main() {
                 .vector;
             let d = origin - l.contact.coords;
             let off_axis = (d - l.baseline * d.dot(&l.baseline)).norm() * 1e3;
+            let band = pad_clear_class(
+                &scene,
+                &gripper,
+                &g.workspace_from_gripper(),
+                l.width,
+                l.object as usize,
+            );
             rows.push((
                 theta,
                 l.width * 1e3,
                 mesh,
                 ex.report.outcome == GraspOutcome::Success,
                 off_axis,
+                band,
             ));
         }
         eprintln!(
@@ -145,6 +183,16 @@ fn main() {
         "by distance of the object's centre from the grasp axis",
         &|r| ((r.4 / 10.0) as usize).min(5),
         &["0-10mm", "10-20", "20-30", "30-40", "40-50", "50+"],
+    );
+    show(
+        "by the pads' paths: free of the target from this far beyond the contacts",
+        &|r| r.5,
+        &["0.5 mm", "1 mm", "2 mm", "3 mm", "5 mm", "8 mm", "never"],
+    );
+    show(
+        "narrow (<20 mm): paths free from 2 mm (0) / not (1)",
+        &|r| if r.1 < 20.0 { (r.5 > 2) as usize } else { 9 },
+        &["free", "not free"],
     );
     show(
         "narrow (<20 mm) by angle <30° (0) / >=30° (1)",

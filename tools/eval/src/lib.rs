@@ -30,8 +30,8 @@ pub use detectors::{
     default_detectors, BuiltDetector, DetectorBackend, DetectorList, DetectorSpec,
 };
 pub use execute::{
-    execute_grasp, hand_collides, pregrasp_pose, ApproachTouch, Execution, ExecutionConfig,
-    ExecutionReport, GraspCommand, GraspOutcome, HandPart,
+    execute_grasp, execute_grasp_traced, hand_collides, pregrasp_pose, ApproachTouch, Execution,
+    ExecutionConfig, ExecutionReport, GraspCommand, GraspOutcome, HandPart, Phase, TraceSample,
 };
 pub use protocol::{
     clear_scene, run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, PickTarget,

@@ -1,6 +1,9 @@
 //! Grasp execution on single analytic objects with known answers.
 use nalgebra::{Point3, Vector3};
-use psgrasp_eval::{execute_grasp, ExecutionConfig, GraspCommand, GraspOutcome, HandPart};
+use psgrasp_eval::{
+    execute_grasp, execute_grasp_traced, ExecutionConfig, GraspCommand, GraspOutcome, HandPart,
+    Phase, TraceSample,
+};
 use psgrasp_geometry::{BinModel, GripperModel};
 use psgrasp_sim::{MeshLibrary, Scene};
 use psgrasp_test_support::grasps::gripper_pose as pose;
@@ -223,4 +226,51 @@ fn execution_is_deterministic() {
     let b = run(&scene, &cmd);
     assert_eq!(a, b);
     assert_eq!(a.report.outcome, GraspOutcome::Success);
+}
+
+#[test]
+fn a_trace_follows_the_phases_and_leaves_the_outcome_unchanged() {
+    let scene = boxes_on_floor(&[([0.02, 0.03, 0.025], [0.0, 0.0])]);
+    let cmd = top_down(&scene, 0, 0.06);
+    let cfg = ExecutionConfig::default();
+    let mut samples: Vec<TraceSample> = Vec::new();
+    let mut keep = |s: &TraceSample| samples.push(s.clone());
+    let traced = execute_grasp_traced(
+        &scene,
+        &MeshLibrary::default(),
+        &GripperModel::default(),
+        &cmd,
+        &cfg,
+        Some(&mut keep),
+    )
+    .unwrap();
+    assert_eq!(traced, run(&scene, &cmd));
+    assert_eq!(traced.report.outcome, GraspOutcome::Success);
+    // One sample per step of the approach, close, lift and hold, in that order.
+    let phases: Vec<Phase> = samples.iter().map(|s| s.phase).collect();
+    let mut order = phases.clone();
+    order.dedup();
+    assert_eq!(
+        order,
+        [Phase::Approach, Phase::Close, Phase::Lift, Phase::Hold]
+    );
+    assert!(samples.windows(2).all(|w| w[1].step == w[0].step + 1));
+    let first = &samples[0];
+    let last = samples.last().unwrap();
+    // The approach starts 80 mm above the grasp pose; the fingers start open and end on the
+    // 40 mm faces, both touching the box, which rose with the hand.
+    let start_gap = (first.workspace_from_palm.translation.vector
+        - cmd.workspace_from_gripper.translation.vector)
+        .norm();
+    assert!((start_gap - 0.08).abs() < 0.01, "start {start_gap}");
+    assert!(
+        (first.opening_m - 0.06).abs() < 0.003,
+        "{}",
+        first.opening_m
+    );
+    assert!((last.opening_m - 0.04).abs() < 0.004, "{}", last.opening_m);
+    assert_eq!(last.finger_touches, [vec![0], vec![0]]);
+    let rise = last.workspace_from_objects[0].translation.z
+        - scene.objects()[0].workspace_from_object.translation.z;
+    assert!(rise > 0.5 * cfg.lift_height_m, "rise {rise}");
 }

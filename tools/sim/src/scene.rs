@@ -326,6 +326,22 @@ impl Scene {
         self.box_hits(b, ignore, true)
     }
 
+    /// True if the oriented box intersects object `object` (through its convex decomposition for
+    /// a mesh); false for an index that is not an object.
+    pub fn box_hits_object(&self, b: &OrientedBox, object: usize) -> bool {
+        if object >= self.object_count() {
+            return false;
+        }
+        let cuboid = Cuboid::new(vec_to_glam(&b.half_extents));
+        intersection_test(
+            &pose_to_glam(&b.parent_from_box),
+            &cuboid,
+            &self.poses[object],
+            self.collision_shapes[object].as_ref(),
+        )
+        .is_ok_and(|r| r.intersecting)
+    }
+
     /// True if the oriented box intersects any object other than `ignore` (the bin is ignored
     /// when `include_bin` is false).
     pub fn box_hits(&self, b: &OrientedBox, ignore: Option<usize>, include_bin: bool) -> bool {
@@ -507,6 +523,12 @@ mod tests {
         // Touching the floor.
         assert!(scene.box_collides(&probe(0.1, 0.005), None));
         assert!(!scene.box_hits(&probe(0.1, 0.005), None, false));
+        // One object only: the cube is hit, the floor never counts, other indices never hit.
+        assert!(scene.box_hits_object(&probe(0.0, 0.03), 0));
+        assert!(scene.box_hits_object(&probe(0.035, 0.03), 0));
+        assert!(!scene.box_hits_object(&probe(0.045, 0.03), 0));
+        assert!(!scene.box_hits_object(&probe(0.1, 0.005), 0));
+        assert!(!scene.box_hits_object(&probe(0.0, 0.03), 1));
     }
 
     #[test]

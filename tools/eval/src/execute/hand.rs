@@ -154,6 +154,18 @@ pub(super) fn fingers_touch(world: &PhysicsWorld, hand: &Hand, touch: f32) -> Ve
     out
 }
 
+/// Object indices each finger (left, right) touches closer than `touch`.
+pub(super) fn touches_per_finger(world: &PhysicsWorld, hand: &Hand, touch: f32) -> [Vec<usize>; 2] {
+    [1, 2].map(|k| {
+        let mut out: Vec<usize> = touched_by(world, hand.colliders[k], touch)
+            .flatten()
+            .collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    })
+}
+
 /// Largest finger speed along the closing axis relative to the palm, m/s.
 pub(super) fn finger_speeds(world: &PhysicsWorld, hand: &Hand) -> f32 {
     let Some(palm) = world.bodies.get(hand.palm) else {

@@ -43,7 +43,7 @@ mod sequence;
 mod world;
 
 pub use config::ExecutionConfig;
-pub use sequence::execute_grasp;
+pub use sequence::{execute_grasp, execute_grasp_traced};
 
 use crate::EvalError;
 use nalgebra::{Isometry3, Translation3, Vector3};
@@ -143,6 +143,38 @@ pub struct ApproachTouch {
     pub object: Option<usize>,
     /// Distance the palm was still short of the grasp pose, metres.
     pub short_of_grasp_m: f32,
+}
+
+/// The motion phase a [`TraceSample`] was taken in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Phase {
+    /// From the pre-grasp towards the grasp pose.
+    Approach,
+    /// Fingers closing.
+    Close,
+    /// Lifting straight up.
+    Lift,
+    /// Holding at the lift height.
+    Hold,
+}
+
+/// The state after one physics step of [`execute_grasp_traced`]: where the hand and the objects
+/// are and what each finger touches (to follow one attempt step by step).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TraceSample {
+    /// The phase of the step.
+    pub phase: Phase,
+    /// Physics steps so far.
+    pub step: usize,
+    /// Gap between the finger pads, metres.
+    pub opening_m: f32,
+    /// The palm's (gripper frame's) pose in the workspace.
+    pub workspace_from_palm: Isometry3<f32>,
+    /// Every object's pose in the workspace (input scene order).
+    pub workspace_from_objects: Vec<Isometry3<f32>>,
+    /// Object indices each finger (left, right) touches closer than the touch distance.
+    pub finger_touches: [Vec<usize>; 2],
 }
 
 /// The result of [`execute_grasp`]: the report and the scene the next attempt sees.

@@ -1,17 +1,19 @@
 //! [`execute_grasp`]: pre-grasp check, approach, close, lift and hold, judge, settle.
 use super::hand::{
     finger_speeds, fingers_touch, first_touch, hand_opening, insert_hand, move_palm,
+    touches_per_finger, Hand,
 };
 use super::world::{collect_scene, execution_world, insert_scene, settle};
 use super::{
     pregrasp_collides, pregrasp_pose, validate_command, ApproachTouch, Execution, ExecutionConfig,
-    ExecutionReport, GraspCommand, GraspOutcome,
+    ExecutionReport, GraspCommand, GraspOutcome, Phase, TraceSample,
 };
 use crate::EvalError;
 use nalgebra::{Isometry3, Translation3, Vector3};
 use psgrasp_geometry::GripperModel;
+use psgrasp_sim::convert::pose_from_glam;
 use psgrasp_sim::{MeshLibrary, Scene};
-use rapier3d::prelude::{JointAxis, MotorModel};
+use rapier3d::prelude::{JointAxis, MotorModel, PhysicsWorld, RigidBodyHandle};
 
 /// Executes one grasp on `scene` (see the module docs). `meshes` must hold the meshes the scene's
 /// objects reference. Deterministic.
@@ -22,6 +24,51 @@ pub fn execute_grasp(
     command: &GraspCommand,
     cfg: &ExecutionConfig,
 ) -> Result<Execution, EvalError> {
+    execute_grasp_traced(scene, meshes, gripper, command, cfg, None)
+}
+
+/// The state after a step, for a trace.
+fn sample(
+    world: &PhysicsWorld,
+    hand: &Hand,
+    objects: &[RigidBodyHandle],
+    phase: Phase,
+    step: usize,
+    cfg: &ExecutionConfig,
+) -> TraceSample {
+    let pose = |h: RigidBodyHandle| {
+        world
+            .bodies
+            .get(h)
+            .map_or(Isometry3::identity(), |b| pose_from_glam(b.position()))
+    };
+    TraceSample {
+        phase,
+        step,
+        opening_m: hand_opening(world, hand),
+        workspace_from_palm: pose(hand.palm),
+        workspace_from_objects: objects.iter().map(|h| pose(*h)).collect(),
+        finger_touches: touches_per_finger(world, hand, cfg.touch_distance_m.max(0.002)),
+    }
+}
+
+/// [`execute_grasp`], calling `trace` (when given) after every physics step of the approach,
+/// close, lift and hold with where the hand and objects are and what the fingers touch. The
+/// outcome does not depend on whether a trace is taken.
+pub fn execute_grasp_traced(
+    scene: &Scene,
+    meshes: &MeshLibrary,
+    gripper: &GripperModel,
+    command: &GraspCommand,
+    cfg: &ExecutionConfig,
+    mut trace: Option<&mut dyn FnMut(&TraceSample)>,
+) -> Result<Execution, EvalError> {
+    let mut record =
+        |world: &PhysicsWorld, hand: &Hand, objects: &[RigidBodyHandle], phase, step| {
+            if let Some(f) = trace.as_mut() {
+                f(&sample(world, hand, objects, phase, step, cfg));
+            }
+        };
     cfg.validate()?;
     validate_command(command, gripper)?;
     let opening = command.opening_m.min(gripper.max_opening_m);
@@ -61,6 +108,7 @@ pub fn execute_grasp(
         move_palm(&mut world, &hand, &pose);
         world.step();
         steps += 1;
+        record(&world, &hand, &objects, Phase::Approach, steps);
         if cfg.abort_on_approach_contact {
             if let Some((part, object)) = first_touch(&world, &hand, cfg.touch_distance_m) {
                 touch = Some(ApproachTouch {
@@ -98,6 +146,7 @@ pub fn execute_grasp(
         for _ in 0..max_close {
             world.step();
             steps += 1;
+            record(&world, &hand, &objects, Phase::Close, steps);
             let speed = finger_speeds(&world, &hand);
             if speed < cfg.finger_stopped_speed_m_s {
                 stopped += 1;
@@ -123,11 +172,13 @@ pub fn execute_grasp(
             move_palm(&mut world, &hand, &pose);
             world.step();
             steps += 1;
+            record(&world, &hand, &objects, Phase::Lift, steps);
         }
         let n_hold = (cfg.hold_time_s / cfg.dt_s).ceil() as usize;
         for _ in 0..n_hold {
             world.step();
             steps += 1;
+            record(&world, &hand, &objects, Phase::Hold, steps);
         }
         final_opening = hand_opening(&world, &hand);
         lifted = objects
