@@ -79,8 +79,16 @@ def _check(name: str, ours: np.ndarray, theirs: np.ndarray, atol: float, rtol: f
     return d
 
 
+def training_time(cfg: Config, elapsed_s: float | None) -> dict[str, Any]:
+    """The card's record of the training time: wall-clock seconds over all sittings, the device
+    and threads, and for CPU runs the core-hours (wall-clock × threads)."""
+    elapsed = float(elapsed_s or 0.0)
+    return {"elapsed_s": round(elapsed, 1), "device": cfg.train.device, "threads": cfg.train.threads,
+            "cpu_hours": round(elapsed * max(1, cfg.train.threads) / 3600.0, 3) if cfg.train.device == "cpu" else None}
+
+
 def build_card(cfg: Config, info: DatasetInfo, step: int, validation: dict | None, unet_sha: str, mlp_sha: str,
-               contact_probability: float | None = None) -> dict[str, Any]:
+               contact_probability: float | None = None, elapsed_s: float | None = None) -> dict[str, Any]:
     """The model card (network contract v1 schema)."""
     val = validation or {}
     return {
@@ -111,6 +119,7 @@ def build_card(cfg: Config, info: DatasetInfo, step: int, validation: dict | Non
             "scenes": info.train_scenes,
             "iterations": step,
             "seed": cfg.seed,
+            "time": training_time(cfg, elapsed_s),
             "config": cfg.to_dict(),
         },
         "validation": {
@@ -146,8 +155,9 @@ def _random_normal_grid(dims: list[int], seed: int) -> torch.Tensor:
 def export_model(net: GraspNet, cfg: Config, info: DatasetInfo, out_dir: Path, step: int = 0,
                  validation: dict | None = None, reference_scene: Path | None = None,
                  contact_probability: float | None = None, atol: float = 1e-5, rtol: float = 1e-5,
-                 log=print) -> dict[str, Any]:
-    """Export, verify and write a model directory; returns the card."""
+                 log=print, elapsed_s: float | None = None) -> dict[str, Any]:
+    """Export, verify and write a model directory; returns the card (`elapsed_s`: the run's
+    training time over all sittings, recorded in the card)."""
     out_dir = Path(out_dir)
     net = net.cpu().eval()
     extent = grid_extent(info.dims, info.voxel_size_m)
@@ -205,7 +215,7 @@ def export_model(net: GraspNet, cfg: Config, info: DatasetInfo, out_dir: Path, s
 
         unet_sha = sha256_bytes(unet_path.read_bytes())
         mlp_sha = sha256_bytes(mlp_path.read_bytes())
-        card = build_card(cfg, info, step, validation, unet_sha, mlp_sha, threshold)
+        card = build_card(cfg, info, step, validation, unet_sha, mlp_sha, threshold, elapsed_s)
         card["export_check"] = {"onnxruntime_max_abs_diff": max(diffs.values()), "atol": atol, "rtol": rtol}
         (tmp_dir / "card.json").write_text(json.dumps(card, indent=2) + "\n")
         if reference_scene is not None:
@@ -259,4 +269,4 @@ def export_run(run_dir: Path, out_dir: Path, reference_scene: Path | None = None
     net = GraspNet(cfg)
     net.load_state_dict(state["model"])
     return export_model(net, cfg, state["dataset"], out_dir, state["step"], state.get("validation"), reference_scene,
-                        contact_probability, log=log)
+                        contact_probability, log=log, elapsed_s=state.get("elapsed_s"))

@@ -391,10 +391,11 @@ def fit(cfg: Config, data: Path, run_dir: Path, make_net, step_fn, evaluate_fn, 
     validation = evaluate_fn(net, ds, cfg, device, t_cfg.max_val_scenes)
     log(f"validation @ {step}: {validation}")
     write_json(run_dir / "validation.json", {"step": step, **validation})
-    save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed0 + time.monotonic() - t0)
+    elapsed_final = elapsed0 + time.monotonic() - t0
+    save_checkpoint(run_dir, step, cfg, net, ds.info, opt, validation, elapsed_final)
     if export:
         ref = ds.root / (ds.val_entries or ds.train_entries)[0]["file"]
-        export_fn(net.cpu(), cfg, ds.info, run_dir / "model", step, validation, ref, log=log)
+        export_fn(net.cpu(), cfg, ds.info, run_dir / "model", step, validation, ref, log=log, elapsed_s=elapsed_final)
         log(f"exported {run_dir / 'model'}")
     if stopped:
         log("stopped early; continue with --resume")

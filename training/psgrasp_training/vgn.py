@@ -254,9 +254,10 @@ def train_vgn(cfg: Config, data: Path, run_dir: Path, resume: bool = False, expo
                stop_at=stop_at)
 
 
-def build_vgn_card(cfg: Config, info: DatasetInfo, step: int, validation: dict | None, sha: str) -> dict[str, Any]:
+def build_vgn_card(cfg: Config, info: DatasetInfo, step: int, validation: dict | None, sha: str,
+                   elapsed_s: float | None = None) -> dict[str, Any]:
     """``card.json`` of a VGN-style model directory."""
-    from .export import torch_version
+    from .export import torch_version, training_time
 
     return {
         "format": VGN_CARD_FORMAT,
@@ -269,7 +270,8 @@ def build_vgn_card(cfg: Config, info: DatasetInfo, step: int, validation: dict |
         "gripper": {"max_opening_m": info.max_opening_m, "approach_depth_m": info.approach_depth_m},
         "network": {"channels": [cfg.model.base_channels * 2**i for i in range(3)]},
         "training": {"dataset_manifest_sha256": info.manifest_sha256, "dataset_path": info.path,
-                     "scenes": info.train_scenes, "iterations": step, "seed": cfg.seed, "config": cfg.to_dict()},
+                     "scenes": info.train_scenes, "iterations": step, "seed": cfg.seed,
+                     "time": training_time(cfg, elapsed_s), "config": cfg.to_dict()},
         "validation": validation,
     }
 
@@ -277,7 +279,7 @@ def build_vgn_card(cfg: Config, info: DatasetInfo, step: int, validation: dict |
 def export_vgn(net: VgnNet, cfg: Config, info: DatasetInfo, out_dir: Path, step: int = 0,
                validation: dict | None = None, reference_scene: Path | None = None,
                reference_normals: torch.Tensor | None = None, atol: float = 1e-5, rtol: float = 1e-5,
-               log=print) -> dict[str, Any]:
+               log=print, elapsed_s: float | None = None) -> dict[str, Any]:
     """Export ``vgn.onnx`` + ``card.json`` (+ ``reference.safetensors`` for a reference input),
     checked with onnxruntime against PyTorch before the directory is renamed into place."""
     from safetensors.torch import save_file
@@ -309,7 +311,7 @@ def export_vgn(net: VgnNet, cfg: Config, info: DatasetInfo, out_dir: Path, step:
             theirs = _ort_session(path).run(None, {"normal_grid": normal_grid.numpy()})
         diff = max(_check(n, o.numpy(), t, atol, rtol) for n, o, t in zip(VGN_OUTPUTS, ours, theirs))
         log(f"onnxruntime check passed: max abs diff {diff:.3g}")
-        card = build_vgn_card(cfg, info, step, validation, sha256_bytes(path.read_bytes()))
+        card = build_vgn_card(cfg, info, step, validation, sha256_bytes(path.read_bytes()), elapsed_s)
         card["export_check"] = {"onnxruntime_max_abs_diff": diff, "atol": atol, "rtol": rtol}
         (tmp_dir / "card.json").write_text(json.dumps(card, indent=2) + "\n")
         if reference_scene is not None or reference_normals is not None:
@@ -332,5 +334,5 @@ def export_vgn_run(run_dir: Path, out_dir: Path, reference_scene: Path | None = 
     net = VgnNet(cfg.model.base_channels)
     net.load_state_dict(state["model"])
     return export_vgn(net, cfg, state["dataset"], out_dir, state["step"], state.get("validation"), reference_scene,
-                      log=log)
+                      log=log, elapsed_s=state.get("elapsed_s"))
 

@@ -39,6 +39,11 @@ def test_train_writes_log_checkpoints_and_model(trained_run):
     assert 0 <= val["contact_recall"] <= 1 and val["contact_voxels_true"] > 0 and val["kappa_mean"] >= 25
     card = json.loads((run / "model" / "card.json").read_text())
     assert card["training"]["iterations"] == 10 and card["grid"]["dims"] == [16, 16, 16]
+    # The training time over all sittings, as the final checkpoint has it, in core-hours too.
+    time_rec = card["training"]["time"]
+    elapsed = load_checkpoint(run)["elapsed_s"]
+    assert time_rec["elapsed_s"] == pytest.approx(elapsed, abs=0.1) and elapsed > 0 and time_rec["threads"] == 1
+    assert time_rec["cpu_hours"] == pytest.approx(time_rec["elapsed_s"] / 3600, abs=1e-3)
     assert card["validation"]["baseline_angle_error_deg"] == pytest.approx(val["baseline_angle_error_deg"])
     for key in ("unet", "mlp"):
         assert card["files"][key]["sha256"] == sha256_bytes((run / "model" / card["files"][key]["path"]).read_bytes())
@@ -118,6 +123,8 @@ def test_an_8app_run_exports_as_the_1app_ablation_from_any_checkpoint(trained_ru
     card = json.loads((out / "card.json").read_text())
     assert card["inference"]["single_approach"] is True and "1app-kappa" in card["name"]
     assert card["training"]["iterations"] == 5
+    assert card["training"]["time"]["elapsed_s"] == pytest.approx(load_checkpoint(run, "step_0000005.pt")["elapsed_s"],
+                                                                  abs=0.1)
     plain = json.loads((run / "model" / "card.json").read_text())
     assert plain["inference"]["single_approach"] is False
     # The cosine ablation is trained differently: an 8app run cannot stand in for it.
