@@ -273,6 +273,10 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
             .iter()
             .map(|d| (d.name.clone(), d.effective_backend(&protocol)))
             .collect::<BTreeMap<_, _>>(),
+        min_quality: detectors
+            .iter()
+            .filter_map(|d| d.min_quality.map(|q| (d.name.clone(), q)))
+            .collect(),
     };
     let run = match RunDescription::read(&args.out)? {
         Some(mut stored) => {
@@ -428,7 +432,8 @@ fn run_jobs(
             let tx = tx.clone();
             let (todo, next, stop, by_name, source) = (&todo, &next, &stop, &by_name, &source);
             s.spawn(move || {
-                let mut backends: HashMap<String, BuiltDetector> = HashMap::new();
+                // Each detector's backend and the protocol it runs under (its selection overrides).
+                let mut backends: HashMap<String, (BuiltDetector, ProtocolConfig)> = HashMap::new();
                 loop {
                     if stop.load(Ordering::Relaxed) {
                         break;
@@ -443,11 +448,15 @@ fn run_jobs(
                                     known: by_name.keys().map(|k| k.to_string()).collect(),
                                 }
                             })?;
-                            backends.insert(key.detector.clone(), spec.build(protocol)?);
+                            backends.insert(
+                                key.detector.clone(),
+                                (spec.build(protocol)?, spec.protocol(protocol)),
+                            );
                         }
-                        let backend = backends
+                        let (backend, protocol) = backends
                             .get_mut(&key.detector)
                             .expect("inserted just above");
+                        let protocol = &*protocol;
                         match source {
                             SceneSource::Generated(pool) => run_scene_with(
                                 key.level,

@@ -139,6 +139,12 @@ pub struct DetectorSpec {
     pub label: Option<String>,
     /// The backend and its settings (or the oracle).
     pub backend: DetectorBackend,
+    /// Overrides the protocol's `[selection] min_quality` for this detector only (the paper's
+    /// protocol executes q > 0.5). For a model whose quality head is calibrated differently; a
+    /// row with it is labelled as such, and the value is chosen on generated scenes
+    /// (`--generate-scenes`, seeds never reported), never on the test set.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_quality: Option<f32>,
 }
 
 /// The detector list file: `[[detector]]` tables.
@@ -157,6 +163,7 @@ impl DetectorSpec {
             name: "analytic".into(),
             label: Some("Analytic antipodal (GPD-style)".into()),
             backend: BackendConfig::Analytic(Default::default()).into(),
+            min_quality: None,
         }
     }
 
@@ -172,6 +179,7 @@ impl DetectorSpec {
                 ..Default::default()
             })
             .into(),
+            min_quality: None,
         }
     }
 
@@ -183,6 +191,7 @@ impl DetectorSpec {
             label: None,
             // One runtime thread: the evaluation runs scenes in parallel (`--jobs`).
             backend: BackendConfig::for_model_dir(&dir, 1).into(),
+            min_quality: None,
         }
     }
 
@@ -191,8 +200,16 @@ impl DetectorSpec {
         self.label.as_deref().unwrap_or(&self.name)
     }
 
-    /// Checks the name.
+    /// Checks the name and the selection override.
     pub fn validate(&self) -> Result<(), EvalError> {
+        if let Some(q) = self.min_quality {
+            if !(0.0..=1.0).contains(&q) {
+                return Err(EvalError::InvalidDetector {
+                    name: self.name.clone(),
+                    reason: format!("min_quality {q} must be in [0, 1]"),
+                });
+            }
+        }
         let ok = !self.name.is_empty()
             && self.name.len() <= 64
             && self
@@ -219,6 +236,16 @@ impl DetectorSpec {
             }
             DetectorBackend::Oracle => DetectorBackend::Oracle,
         }
+    }
+
+    /// The protocol this detector runs under: `protocol` with [`DetectorSpec::min_quality`]
+    /// applied to the cell's selection.
+    pub fn protocol(&self, protocol: &ProtocolConfig) -> ProtocolConfig {
+        let mut p = protocol.clone();
+        if let Some(q) = self.min_quality {
+            p.scenes.cell.selection.min_quality = q;
+        }
+        p
     }
 
     /// Builds the backend for the protocol's cell (its workspace and gripper).

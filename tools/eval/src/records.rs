@@ -87,6 +87,10 @@ pub struct RunDescription {
     pub protocol: ProtocolConfig,
     /// Every detector run into this directory, by name, with the backend settings it ran with.
     pub detectors: BTreeMap<String, DetectorBackend>,
+    /// Detectors that ran with their own `[selection] min_quality` (`DetectorSpec::min_quality`),
+    /// by name; absent names ran with the protocol's.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub min_quality: BTreeMap<String, f32>,
 }
 
 impl RunDescription {
@@ -140,13 +144,17 @@ impl RunDescription {
             return Err(mismatch("protocol settings".into()));
         }
         for (name, cfg) in &other.detectors {
+            let same_override = self.min_quality.get(name) == other.min_quality.get(name);
             match self.detectors.get(name) {
-                Some(old) if old != cfg => {
+                Some(old) if old != cfg || !same_override => {
                     return Err(mismatch(format!("settings of detector `{name}`")))
                 }
                 Some(_) => {}
                 None => {
                     self.detectors.insert(name.clone(), cfg.clone());
+                    if let Some(q) = other.min_quality.get(name) {
+                        self.min_quality.insert(name.clone(), *q);
+                    }
                 }
             }
         }
@@ -402,6 +410,7 @@ mod tests {
             object_source: "procedural".into(),
             protocol: ProtocolConfig::default(),
             detectors: BTreeMap::from([("analytic".to_string(), BackendConfig::default().into())]),
+            min_quality: BTreeMap::new(),
         };
         let mut stored = base.clone();
         let mut more = base.clone();
@@ -423,5 +432,18 @@ mod tests {
         };
         a.min_quality = 0.9;
         assert!(stored.merge(&retuned, dir).is_err());
+        // The same backend with its own selection threshold is other settings too; a new
+        // detector brings its threshold along.
+        let mut thresholded = base.clone();
+        thresholded.min_quality.insert("analytic".into(), 0.3);
+        assert!(stored.merge(&thresholded, dir).is_err());
+        let mut third = base.clone();
+        third
+            .detectors
+            .insert("third".into(), BackendConfig::default().into());
+        third.min_quality.insert("third".into(), 0.3);
+        stored.merge(&third, dir).unwrap();
+        assert_eq!(stored.min_quality.get("third"), Some(&0.3));
+        assert!(stored.merge(&third, dir).is_ok());
     }
 }

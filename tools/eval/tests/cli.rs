@@ -101,3 +101,51 @@ fn two_scene_eval_writes_reports_and_resumes() {
     train.levels = vec![Difficulty::Train];
     assert!(run_eval(&train).is_err());
 }
+
+#[test]
+fn a_detector_can_carry_its_own_quality_threshold() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let list = dir.path().join("detectors.toml");
+    std::fs::write(
+        &list,
+        "[[detector]]\nname = \"analytic\"\nbackend = { kind = \"analytic\" }\n\n\
+         [[detector]]\nname = \"analytic-q999\"\nbackend = { kind = \"analytic\" }\nmin_quality = 0.999\n",
+    )
+    .unwrap();
+    let mut a = args(&out, 2, 2);
+    a.detectors = vec!["analytic".into(), "analytic-q999".into()];
+    a.detectors_file = Some(list.clone());
+    run_eval(&a).unwrap();
+    let f = RecordsFile::open(&out).unwrap();
+    let qualities = |name: &str| -> Vec<f32> {
+        f.lines()
+            .iter()
+            .filter_map(|l| match l {
+                RecordLine::Attempt { key, attempt } if key.detector == name => {
+                    Some(attempt.quality)
+                }
+                _ => None,
+            })
+            .collect()
+    };
+    let (plain, strict) = (qualities("analytic"), qualities("analytic-q999"));
+    // The protocol's 0.5 lets the plain detector execute grasps below 0.999 (it picks the best
+    // first, so these are 0.96-0.99); the override executes none, on the same scenes.
+    assert!(plain.iter().any(|q| *q < 0.999), "{plain:?}");
+    assert!(
+        strict.iter().all(|q| *q >= 0.999) && strict != plain,
+        "{strict:?}"
+    );
+    // An override outside [0, 1] is refused, naming the detector.
+    std::fs::write(
+        &list,
+        "[[detector]]\nname = \"bad\"\nbackend = { kind = \"analytic\" }\nmin_quality = 1.5\n",
+    )
+    .unwrap();
+    let mut bad = args(&dir.path().join("bad"), 1, 1);
+    bad.detectors = vec!["bad".into()];
+    bad.detectors_file = Some(list);
+    let err = format!("{:#}", run_eval(&bad).unwrap_err());
+    assert!(err.contains("bad") && err.contains("min_quality"), "{err}");
+}

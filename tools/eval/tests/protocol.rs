@@ -36,6 +36,7 @@ fn oracle() -> DetectorSpec {
         name: "oracle".into(),
         label: None,
         backend: DetectorBackend::Oracle,
+        min_quality: None,
     }
 }
 
