@@ -1,9 +1,10 @@
 //! Executes an evenly spread sample of the labeler's collision-free grasps on test-set scenes and prints
 //! the success rate by contact angle and width: which labels the simulated hand can hold.
 //! `cargo run --release -p psgrasp-eval --example label_trials -- [LEVEL] [SCENES] [GRASPS_PER_SCENE]`
-use psgrasp_datagen::labels::generate_labels;
+mod common;
+
 use psgrasp_datagen::Difficulty;
-use psgrasp_eval::{execute_grasp, GraspCommand, GraspOutcome, ProtocolConfig, TestSet};
+use psgrasp_eval::{execute_grasp, GraspOutcome};
 
 /// One trial: largest contact angle to the baseline (°), width (mm), random-URDF target, success,
 /// distance of the object's origin from the grasp axis (mm), the nearest distance beyond the
@@ -51,47 +52,19 @@ fn contact_angle_deg(normal: &nalgebra::Vector3<f32>, baseline: &nalgebra::Vecto
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let level: Difficulty = match args.get(1).map(String::as_str).unwrap_or("medium") {
-        "easy" => Difficulty::Easy,
-        "challenging" => Difficulty::Challenging,
-        _ => Difficulty::Medium,
-    };
+    let level = common::level_arg(args.get(1), Difficulty::Medium);
     let scenes: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(5);
     let per_scene: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(40);
-    let text = std::fs::read_to_string("config/eval-protocol-franka-fingertip.toml").unwrap();
-    let cfg: ProtocolConfig = toml::from_str(&text).unwrap();
-    let mesh_dir =
-        std::path::PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/psgrasp/objects");
-    let set = TestSet::open(std::path::Path::new("data/testset"), &mesh_dir).unwrap();
+    let (cfg, set) = common::benchmark();
     let gripper = cfg.scenes.cell.gripper;
     let mut rows: Vec<Trial> = Vec::new();
     let mut outcomes = std::collections::BTreeMap::new();
     for i in 0..scenes {
-        let scene = set.scene(level, i).unwrap();
-        let camera = psgrasp_sim::default_camera(scene.bin(), cfg.scenes.intrinsics);
-        let rendering = scene.render(&camera);
-        let labels =
-            generate_labels(&scene, &camera, &rendering, &gripper, &cfg.scenes.labels, i).labels;
-        let free: Vec<(usize, usize)> = labels
-            .iter()
-            .enumerate()
-            .flat_map(|(k, l)| {
-                (0..l.collision_free.len())
-                    .filter(|&a| l.collision_free[a])
-                    .map(move |a| (k, a))
-            })
-            .collect();
-        let n = per_scene.min(free.len());
-        for j in 0..n {
-            // Evenly spread over the labels (they come object by object).
-            let (k, a) = free[j * free.len() / n.max(1)];
+        let (scene, labels) = common::labelled_scene(&cfg, &set, level, i);
+        for (k, a) in common::spread_free_grasps(&labels, |_| true, per_scene) {
             let l = &labels[k];
             let g = l.grasp(a);
-            let cmd = GraspCommand {
-                workspace_from_gripper: g.workspace_from_gripper(),
-                opening_m: gripper.max_opening_m,
-                pregrasp_distance_m: cfg.cell().selection.clearance.pregrasp_distance_m,
-            };
+            let cmd = common::label_command(&cfg, l, a);
             let ex = execute_grasp(&scene, &set.meshes, &gripper, &cmd, &cfg.execution).unwrap();
             *outcomes
                 .entry(format!("{:?}", ex.report.outcome))

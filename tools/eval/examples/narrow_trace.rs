@@ -4,12 +4,11 @@
 //! in the gripper frame (x = closing axis, y = along the pads, z = approach) while closing and
 //! while lifting. Pre-grasp collisions and approach touches are left out.
 //! `cargo run --release -p psgrasp-eval --example narrow_trace -- [LEVEL] [SCENES] [MAX_WIDTH_MM] [PER_SCENE]`
+mod common;
+
 use nalgebra::{Isometry3, Vector3};
-use psgrasp_datagen::labels::generate_labels;
 use psgrasp_datagen::Difficulty;
-use psgrasp_eval::{
-    execute_grasp_traced, GraspCommand, GraspOutcome, Phase, ProtocolConfig, TestSet, TraceSample,
-};
+use psgrasp_eval::{execute_grasp_traced, GraspOutcome, Phase, TraceSample};
 
 /// The target's offset from the palm and its rotation angle from the first sample (gripper frame).
 fn relative(s: &TraceSample, target: usize, first: &Isometry3<f32>) -> (Vector3<f32>, f32) {
@@ -22,11 +21,7 @@ fn relative(s: &TraceSample, target: usize, first: &Isometry3<f32>) -> (Vector3<
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let level: Difficulty = match args.get(1).map(String::as_str).unwrap_or("challenging") {
-        "easy" => Difficulty::Easy,
-        "medium" => Difficulty::Medium,
-        _ => Difficulty::Challenging,
-    };
+    let level = common::level_arg(args.get(1), Difficulty::Challenging);
     let scenes: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(3);
     let max_width = args
         .get(3)
@@ -34,45 +29,22 @@ fn main() {
         .unwrap_or(20.0)
         * 1e-3;
     let per_scene: usize = args.get(4).and_then(|s| s.parse().ok()).unwrap_or(10);
-    let text = std::fs::read_to_string("config/eval-protocol-franka-fingertip.toml").unwrap();
-    let cfg: ProtocolConfig = toml::from_str(&text).unwrap();
-    let mesh_dir =
-        std::path::PathBuf::from(std::env::var("HOME").unwrap()).join(".cache/psgrasp/objects");
-    let set = TestSet::open(std::path::Path::new("data/testset"), &mesh_dir).unwrap();
+    let (cfg, set) = common::benchmark();
     let gripper = cfg.scenes.cell.gripper;
     let mut tally = std::collections::BTreeMap::new();
     for i in 0..scenes {
-        let scene = set.scene(level, i).unwrap();
-        let camera = psgrasp_sim::default_camera(scene.bin(), cfg.scenes.intrinsics);
-        let rendering = scene.render(&camera);
-        let labels =
-            generate_labels(&scene, &camera, &rendering, &gripper, &cfg.scenes.labels, i).labels;
-        let narrow: Vec<(usize, usize)> = labels
-            .iter()
-            .enumerate()
-            .filter(|(_, l)| {
-                l.width < max_width
-                    && scene.objects()[l.object as usize]
-                        .spec
-                        .name
-                        .starts_with("random")
-            })
-            .flat_map(|(k, l)| {
-                (0..l.collision_free.len())
-                    .filter(|&a| l.collision_free[a])
-                    .map(move |a| (k, a))
-            })
-            .collect();
-        let n = per_scene.min(narrow.len());
-        for j in 0..n {
-            let (k, a) = narrow[j * narrow.len() / n.max(1)];
+        let (scene, labels) = common::labelled_scene(&cfg, &set, level, i);
+        let narrow = |l: &psgrasp_datagen::GraspLabel| {
+            l.width < max_width
+                && scene.objects()[l.object as usize]
+                    .spec
+                    .name
+                    .starts_with("random")
+        };
+        for (k, a) in common::spread_free_grasps(&labels, narrow, per_scene) {
             let l = &labels[k];
             let target = l.object as usize;
-            let cmd = GraspCommand {
-                workspace_from_gripper: l.grasp(a).workspace_from_gripper(),
-                opening_m: gripper.max_opening_m,
-                pregrasp_distance_m: cfg.cell().selection.clearance.pregrasp_distance_m,
-            };
+            let cmd = common::label_command(&cfg, l, a);
             let mut samples: Vec<TraceSample> = Vec::new();
             let mut keep = |s: &TraceSample| samples.push(s.clone());
             let ex = execute_grasp_traced(
