@@ -111,8 +111,8 @@ def scene_candidates(net: GraspNet, normals: torch.Tensor, extent_m: list[float]
     return Candidates(d.points[idx], d.baseline[idx], d.width[idx], approach, d.quality[idx])
 
 
-def top_picks(c: Candidates, pc: PickCheckConfig) -> Candidates:
-    """The best `pc.k` candidates whose TCPs keep the pick spacing."""
+def top_pick_indices(c: Candidates, pc: PickCheckConfig) -> list[int]:
+    """Indices of the best `pc.k` candidates whose TCPs keep the pick spacing, best first."""
     tcp = c.points + 0.5 * c.widths.unsqueeze(-1) * c.baselines
     chosen: list[int] = []
     for r in range(len(c)):
@@ -120,7 +120,12 @@ def top_picks(c: Candidates, pc: PickCheckConfig) -> Candidates:
             chosen.append(r)
             if len(chosen) == pc.k:
                 break
-    return c.take(chosen)
+    return chosen
+
+
+def top_picks(c: Candidates, pc: PickCheckConfig) -> Candidates:
+    """The best `pc.k` candidates whose TCPs keep the pick spacing."""
+    return c.take(top_pick_indices(c, pc))
 
 
 def scene_picks(net: GraspNet, normals: torch.Tensor, extent_m: list[float], voxel_size_m: float,
@@ -186,14 +191,14 @@ def pick_check(net: GraspNet, ds: SceneDataset, cfg: Config, max_scenes: int = 0
         objects = int(entry.get("objects", 0))
         cands = scene_candidates(net, scene.normals, scene.extent_m, scene.voxel_size_m,
                                  cfg.export.contact_probability, cfg.grid.approach_depth_m, pc)
-        top = top_picks(cands, pc)
-        matches = pick_matches(scene, top.points, top.baselines, top.widths, top.approaches, pc)
+        # Every candidate matched once: the top picks' matches and the objects covered.
+        hit = matched_labels(scene, cands.points, cands.baselines, cands.widths, cands.approaches, pc)
+        matches = (hit[top_pick_indices(cands, pc)] >= 0).tolist()
         # Object recall: objects with a collision-free label that some candidate matches.
         labelled = covered = 0
         if scene.object is not None and len(scene.contact):
             free = scene.collision_free.sum(1) > 0
             labelled = int(torch.unique(scene.object[free]).numel())
-            hit = matched_labels(scene, cands.points, cands.baselines, cands.widths, cands.approaches, pc)
             covered = int(torch.unique(scene.object[hit[hit >= 0]]).numel())
         for name in (_group(objects, pc.groups), "all"):
             s = stats.setdefault(name, {"scenes": 0, "matched": 0, "top1": 0, "no_pick": 0, "labelled": 0,
