@@ -144,11 +144,7 @@ pub(super) fn first_touch(
 
 /// Object indices with a contact closer than `touch` to either finger.
 pub(super) fn fingers_touch(world: &PhysicsWorld, hand: &Hand, touch: f32) -> Vec<usize> {
-    let mut out: Vec<usize> = hand.colliders[1..]
-        .iter()
-        .flat_map(|c| touched_by(world, *c, touch))
-        .flatten()
-        .collect();
+    let mut out = touches_per_finger(world, hand, touch).concat();
     out.sort_unstable();
     out.dedup();
     out
@@ -164,6 +160,12 @@ pub(super) fn touches_per_finger(world: &PhysicsWorld, hand: &Hand, touch: f32) 
         out.dedup();
         out
     })
+}
+
+/// How close an object must be to a finger to count as held: the touch distance, at least 2 mm
+/// (a held object rests on the pads; the approach's touch distance may be set tighter).
+pub(super) fn holding_distance(cfg: &ExecutionConfig) -> f32 {
+    cfg.touch_distance_m.max(0.002)
 }
 
 /// Largest finger speed along the closing axis relative to the palm, m/s.

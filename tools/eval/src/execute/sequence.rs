@@ -1,7 +1,7 @@
 //! [`execute_grasp`]: pre-grasp check, approach, close, lift and hold, judge, settle.
 use super::hand::{
-    finger_speeds, fingers_touch, first_touch, hand_opening, insert_hand, move_palm,
-    touches_per_finger, Hand,
+    finger_speeds, fingers_touch, first_touch, hand_opening, holding_distance, insert_hand,
+    move_palm, touches_per_finger, Hand,
 };
 use super::world::{collect_scene, execution_world, insert_scene, settle};
 use super::{
@@ -48,7 +48,7 @@ fn sample(
         opening_m: hand_opening(world, hand),
         workspace_from_palm: pose(hand.palm),
         workspace_from_objects: objects.iter().map(|h| pose(*h)).collect(),
-        finger_touches: touches_per_finger(world, hand, cfg.touch_distance_m.max(0.002)),
+        finger_touches: touches_per_finger(world, hand, holding_distance(cfg)),
     }
 }
 
@@ -191,7 +191,7 @@ pub fn execute_grasp_traced(
             })
             .map(|(i, _)| i)
             .collect::<Vec<_>>();
-        let touching = fingers_touch(&world, &hand, cfg.touch_distance_m.max(0.002));
+        let touching = fingers_touch(&world, &hand, holding_distance(cfg));
         outcome = match lifted.as_slice() {
             [] => GraspOutcome::NothingHeld,
             [i] if touching.contains(i) && final_opening > cfg.min_opening_m => {
