@@ -55,6 +55,14 @@ impl OrientedBox {
             && l.z.abs() <= self.half_extents.z + margin
     }
 
+    /// The same box seen from one frame further out: `outer_from_parent` applied to its pose.
+    pub fn placed(&self, outer_from_parent: &Isometry3<f32>) -> OrientedBox {
+        OrientedBox {
+            parent_from_box: outer_from_parent * self.parent_from_box,
+            half_extents: self.half_extents,
+        }
+    }
+
     /// The eight corners in the parent frame.
     pub fn corners(&self) -> [Point3<f32>; 8] {
         let h = self.half_extents;
@@ -147,10 +155,8 @@ impl GripperModel {
         workspace_from_gripper: &Isometry3<f32>,
         opening_m: f32,
     ) -> [OrientedBox; 3] {
-        self.boxes_in_gripper_frame(opening_m).map(|b| OrientedBox {
-            parent_from_box: workspace_from_gripper * b.parent_from_box,
-            half_extents: b.half_extents,
-        })
+        self.boxes_in_gripper_frame(opening_m)
+            .map(|b| b.placed(workspace_from_gripper))
     }
 
     /// The stretches of the two pads' closing paths between `near_m` and `far_m` beyond the

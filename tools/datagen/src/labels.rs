@@ -244,11 +244,7 @@ pub fn check_pose(
         }
     }
     if config.check_closing_region {
-        let region = gripper.closing_region(grasp.width);
-        let region = psgrasp_geometry::OrientedBox {
-            parent_from_box: pose * region.parent_from_box,
-            half_extents: region.half_extents,
-        };
+        let region = gripper.closing_region(grasp.width).placed(&pose);
         if scene.box_collides(&region, Some(object)) {
             return PoseCheck::ClosingRegionBlocked;
         }

@@ -29,13 +29,7 @@ fn pad_clear_class(
             gripper
                 .pad_sweep_regions(width, near * 1e-3, 0.010)
                 .iter()
-                .all(|b| {
-                    let b = psgrasp_geometry::OrientedBox {
-                        parent_from_box: pose * b.parent_from_box,
-                        half_extents: b.half_extents,
-                    };
-                    !scene.box_hits_object(&b, object)
-                })
+                .all(|b| !scene.box_hits_object(&b.placed(pose), object))
         })
         .unwrap_or(BAND_MM.len())
 }
