@@ -80,11 +80,13 @@ class Candidates:
 
 
 def scene_candidates(net: GraspNet, normals: torch.Tensor, extent_m: list[float], voxel_size_m: float,
-                     contact_probability: float, approach_depth_m: float, pc: PickCheckConfig) -> Candidates:
+                     contact_probability: float, approach_depth_m: float, pc: PickCheckConfig,
+                     unet_out: tuple | None = None) -> Candidates:
     """Every configuration of one grid that passes the selection's thresholds (q, the best
-    approaches' σ inside the tilt cone), ordered by q."""
+    approaches' σ inside the tilt cone), ordered by q. `unet_out`: the U-Net's (logits, encs) of
+    this grid when the caller already ran it (validation), so it runs once per scene."""
     device = next(net.parameters()).device
-    logits, encs = net.unet(normals.to(device).unsqueeze(0))
+    logits, encs = unet_out if unet_out is not None else net.unet(normals.to(device).unsqueeze(0))
     probs = class_probabilities(logits)
     dims = list(normals.shape[1:])
     voxels = contact_voxels(probs[0, 1].cpu(), contact_probability, pc.max_contact_voxels)
@@ -175,6 +177,44 @@ def pick_matches(scene, points, baselines, widths, approaches, pc: PickCheckConf
     return (matched_labels(scene, points, baselines, widths, approaches, pc) >= 0).tolist()
 
 
+class PickStats:
+    """The pick check's counts, scene by scene, per scene-size group and pooled."""
+
+    def __init__(self, pc: PickCheckConfig):
+        self.pc = pc
+        self.stats: dict[str, dict[str, float]] = {}
+
+    def add(self, scene, objects: int, cands: Candidates) -> None:
+        """Count one scene from its candidates (every candidate matched once: the top picks'
+        matches and the objects covered)."""
+        pc = self.pc
+        hit = matched_labels(scene, cands.points, cands.baselines, cands.widths, cands.approaches, pc)
+        matches = (hit[top_pick_indices(cands, pc)] >= 0).tolist()
+        # Object recall: objects with a collision-free label that some candidate matches.
+        labelled = covered = 0
+        if scene.object is not None and len(scene.contact):
+            free = scene.collision_free.sum(1) > 0
+            labelled = int(torch.unique(scene.object[free]).numel())
+            covered = int(torch.unique(scene.object[hit[hit >= 0]]).numel())
+        for name in (_group(objects, pc.groups), "all"):
+            s = self.stats.setdefault(name, {"scenes": 0, "matched": 0, "top1": 0, "no_pick": 0, "labelled": 0,
+                                             "covered": 0})
+            s["scenes"] += 1
+            s["matched"] += sum(matches)
+            s["top1"] += int(bool(matches) and matches[0])
+            s["no_pick"] += int(not matches)
+            s["labelled"] += labelled
+            s["covered"] += covered
+
+    def result(self) -> dict:
+        """precision_at_k, top1, no_pick and object_recall per group."""
+        k = self.pc.k
+        return {name: {"scenes": s["scenes"], "precision_at_k": s["matched"] / (k * s["scenes"]),
+                       "top1": s["top1"] / s["scenes"], "no_pick": s["no_pick"] / s["scenes"],
+                       "object_recall": s["covered"] / s["labelled"] if s["labelled"] else 0.0}
+                for name, s in self.stats.items()}
+
+
 @torch.no_grad()
 def pick_check(net: GraspNet, ds: SceneDataset, cfg: Config, max_scenes: int = 0,
                pc: PickCheckConfig | None = None, all_scenes: bool = False) -> dict:
@@ -185,33 +225,12 @@ def pick_check(net: GraspNet, ds: SceneDataset, cfg: Config, max_scenes: int = 0
     net.eval()
     entries = sorted(ds.train_entries + ds.val_entries, key=lambda e: e["index"]) if all_scenes else ds.val_entries
     entries = entries[:max_scenes] if max_scenes > 0 else entries
-    stats: dict[str, dict[str, float]] = {}
+    stats = PickStats(pc)
     for entry in entries:
         scene = ds.scene(entry)
-        objects = int(entry.get("objects", 0))
-        cands = scene_candidates(net, scene.normals, scene.extent_m, scene.voxel_size_m,
-                                 cfg.export.contact_probability, cfg.grid.approach_depth_m, pc)
-        # Every candidate matched once: the top picks' matches and the objects covered.
-        hit = matched_labels(scene, cands.points, cands.baselines, cands.widths, cands.approaches, pc)
-        matches = (hit[top_pick_indices(cands, pc)] >= 0).tolist()
-        # Object recall: objects with a collision-free label that some candidate matches.
-        labelled = covered = 0
-        if scene.object is not None and len(scene.contact):
-            free = scene.collision_free.sum(1) > 0
-            labelled = int(torch.unique(scene.object[free]).numel())
-            covered = int(torch.unique(scene.object[hit[hit >= 0]]).numel())
-        for name in (_group(objects, pc.groups), "all"):
-            s = stats.setdefault(name, {"scenes": 0, "matched": 0, "top1": 0, "no_pick": 0, "labelled": 0,
-                                        "covered": 0})
-            s["scenes"] += 1
-            s["matched"] += sum(matches)
-            s["top1"] += int(bool(matches) and matches[0])
-            s["no_pick"] += int(not matches)
-            s["labelled"] += labelled
-            s["covered"] += covered
+        stats.add(scene, int(entry.get("objects", 0)),
+                  scene_candidates(net, scene.normals, scene.extent_m, scene.voxel_size_m,
+                                   cfg.export.contact_probability, cfg.grid.approach_depth_m, pc))
     if was_training:
         net.train()
-    return {name: {"scenes": s["scenes"], "precision_at_k": s["matched"] / (pc.k * s["scenes"]),
-                   "top1": s["top1"] / s["scenes"], "no_pick": s["no_pick"] / s["scenes"],
-                   "object_recall": s["covered"] / s["labelled"] if s["labelled"] else 0.0}
-            for name, s in stats.items()}
+    return stats.result()

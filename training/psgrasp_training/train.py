@@ -23,7 +23,7 @@ from .export import export_model
 from .losses import (GraspIndex, contact_voxel_points, focal_loss, grasp_loss, grasp_targets,
                      predicted_voxel_points)
 from .model import CLASSES, GraspNet
-from .pickcheck import pick_check
+from .pickcheck import PickCheckConfig, PickStats, pick_check, scene_candidates
 
 LOG_FIELDS = ["step", "loss", "label", "grasp", "baseline", "approach", "width", "quality", "collision", "points",
               "hit_rate", "lr", "seconds", "elapsed_s"]
@@ -223,10 +223,15 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
     union = torch.zeros(3, dtype=torch.float64)
     tp = n_pred = n_true = 0
     angles, width_err, q_err, kappas, hits, npts = [], [], [], [], 0, 0
+    picks = PickStats(PickCheckConfig())
     for entry in entries:
         scene = ds.scene(entry)
         dev_scene = scene_to(scene, device)
         logits, encs = net.unet(dev_scene.normals.unsqueeze(0))
+        picks.add(scene, int(entry.get("objects", 0)),
+                  scene_candidates(net, scene.normals, scene.extent_m, scene.voxel_size_m,
+                                   cfg.export.contact_probability, cfg.grid.approach_depth_m, picks.pc,
+                                   unet_out=(logits, encs)))
         pred = logits[0].argmax(0).cpu()
         for c in range(3):
             p, t = pred == c, scene.labels == c
@@ -261,7 +266,6 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             angles.append(best_ang)
             w_best = scene.width[idx.clamp(min=0).gather(1, best.unsqueeze(1)).squeeze(1)]
             width_err.append((out["width"][h] - w_best).abs() * 1000.0)
-    picks = pick_check(net, ds, cfg, max_scenes)
     net.train()
     iou = {name: float(inter[c] / union[c]) if union[c] > 0 else 0.0 for c, name in enumerate(CLASSES)}
 
@@ -272,7 +276,7 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             "width_error_mm": mean(width_err), "quality_mae": mean(q_err), "points": npts,
             "hit_rate": hits / npts if npts else 0.0, "kappa_mean": mean(kappas),
             "contact_precision": tp / n_pred if n_pred else 0.0, "contact_recall": tp / n_true if n_true else 0.0,
-            "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true, "picks": picks}
+            "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true, "picks": picks.result()}
 
 
 def _open_log(run_dir: Path, resume_step: int, fields: list[str] = LOG_FIELDS):

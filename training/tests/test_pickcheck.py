@@ -7,7 +7,7 @@ import torch
 from psgrasp_training.data import SceneDataset
 from psgrasp_training.decode import approach_vectors
 from psgrasp_training.model import GraspNet
-from psgrasp_training.pickcheck import PickCheckConfig, pick_check, pick_matches, scene_picks
+from psgrasp_training.pickcheck import PickCheckConfig, pick_check, pick_matches, scene_candidates, scene_picks
 from psgrasp_training.train import pick_check_run, train
 
 
@@ -79,6 +79,22 @@ def test_picks_follow_the_selection_rules(box_dataset, tiny_cfg):
     assert cones_met >= 1
     # A quality threshold above anything a softmax product reaches leaves no pick.
     assert len(picks(0, PickCheckConfig(min_quality=1.01, max_approach_tilt_deg=90.0))[0]) == 0
+
+
+def test_candidates_from_a_precomputed_unet_pass_equal_those_computed_inside(box_dataset, tiny_cfg):
+    # Validation runs the U-Net once per scene and hands its output to the pick check.
+    cfg, _, scene = _first_scene(box_dataset, tiny_cfg)
+    torch.manual_seed(1)
+    net = GraspNet(cfg).eval()
+    pc = PickCheckConfig(min_quality=0.0, min_collision_score=0.0, max_approach_tilt_deg=90.0)
+    args = (net, scene.normals, scene.extent_m, scene.voxel_size_m, 0.0, 0.039, pc)
+    with torch.no_grad():
+        inside = scene_candidates(*args)
+        given = scene_candidates(*args, unet_out=net.unet(scene.normals.unsqueeze(0)))
+    assert len(inside) > 0
+    for a, b in ((inside.points, given.points), (inside.baselines, given.baselines), (inside.quality, given.quality),
+                 (inside.approaches, given.approaches), (inside.widths, given.widths)):
+        assert torch.equal(a, b)
 
 
 def test_pick_check_reports_every_group_and_runs_on_checkpoints(box_dataset, tiny_cfg, tmp_path):
