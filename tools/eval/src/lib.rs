@@ -19,6 +19,7 @@
 pub mod cli;
 pub mod detectors;
 pub mod execute;
+pub mod oracle;
 pub mod plot;
 pub mod protocol;
 pub mod records;
@@ -30,9 +31,11 @@ pub use detectors::{
     default_detectors, BuiltDetector, DetectorBackend, DetectorList, DetectorSpec,
 };
 pub use execute::{
-    execute_grasp, execute_grasp_traced, hand_collides, pregrasp_pose, ApproachTouch, Execution,
-    ExecutionConfig, ExecutionReport, GraspCommand, GraspOutcome, HandPart, Phase, TraceSample,
+    execute_grasp, execute_grasp_traced, hand_collides, pregrasp_pose, verify_grasp_in_isolation,
+    ApproachTouch, Execution, ExecutionConfig, ExecutionReport, GraspCommand, GraspOutcome,
+    HandPart, Phase, TraceSample,
 };
+pub use oracle::OracleConfig;
 pub use protocol::{
     clear_scene, run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, PickTarget,
     ProtocolConfig, RemainingObject, SceneEnd, SceneRun, SceneSummary, TouchRecord, TouchedThing,

@@ -22,15 +22,15 @@ use crate::execute::{
     execute_grasp, pregrasp_collides, ApproachTouch, ExecutionConfig, GraspCommand, GraspOutcome,
     HandPart,
 };
+use crate::oracle::{label_holds_in_isolation, oracle_configurations, OracleConfig};
 use crate::EvalError;
 use nalgebra::Point3;
-use psgrasp_datagen::{derive_seed, generate_labels, Difficulty, GenerationConfig};
-use psgrasp_geometry::{CameraModel, GraspConfiguration};
+use psgrasp_datagen::{derive_seed, Difficulty, GenerationConfig};
 use psgrasp_inference::InferenceBackend;
 use psgrasp_perception::{CellConfig, DetectionTimings, Perception, Proposer};
 use psgrasp_selection::RejectionCounts;
 use psgrasp_sim::{
-    add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Rendering, Scene,
+    add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Scene,
 };
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -58,6 +58,8 @@ pub struct ProtocolConfig {
     pub max_consecutive_failures: u32,
     /// A scene ends after this many attempts in any case.
     pub max_attempts_per_scene: u32,
+    /// The oracle's labels checked in physics as ACRONYM checks the paper's labels.
+    pub oracle: OracleConfig,
 }
 
 impl Default for ProtocolConfig {
@@ -68,6 +70,7 @@ impl Default for ProtocolConfig {
             skip_colliding_pregrasps: false,
             max_consecutive_failures: 3,
             max_attempts_per_scene: 100,
+            oracle: OracleConfig::default(),
         }
     }
 }
@@ -90,6 +93,13 @@ impl ProtocolConfig {
             return Err(EvalError::InvalidConfig {
                 field: "max_attempts_per_scene",
                 reason: "must be at least 1",
+            });
+        }
+        let w = self.oracle.physics_check_max_width_m;
+        if !(w.is_finite() && w >= 0.0) {
+            return Err(EvalError::InvalidConfig {
+                field: "oracle.physics_check_max_width_m",
+                reason: "must be a width >= 0 m",
             });
         }
         self.cell().validate()?;
@@ -152,6 +162,10 @@ pub struct AttemptRecord {
     /// simulated scene ([`ProtocolConfig::skip_colliding_pregrasps`]; 0 when off).
     #[serde(default)]
     pub pregrasps_skipped: usize,
+    /// Oracle labels refused on this frame because they did not hold their object in the
+    /// physics check ([`OracleConfig::physics_check_max_width_m`]; 0 when off).
+    #[serde(default)]
+    pub labels_failed_physics: usize,
     /// The depth scale the correction found on this frame (`None`: correction off, or nothing
     /// to go by); applied when it is off by at least `depth_scale.min_correction`.
     #[serde(default)]
@@ -203,7 +217,7 @@ pub struct PickTarget {
     pub tcp_distance_m: f32,
     /// Its index in the scene before the attempt (not recorded).
     #[serde(skip)]
-    index: usize,
+    pub(crate) index: usize,
 }
 
 impl PickTarget {
@@ -452,12 +466,21 @@ pub fn clear_scene(
             Proposer::Backend
         };
         let mut skipped_in_simulation = 0usize;
+        let mut failed_physics = 0usize;
+        let check_width = cfg.oracle.physics_check_max_width_m;
         let detection = perception.detect_with(depth, &camera, detect_seed, proposer, |pick| {
+            let command = GraspCommand::from(pick);
+            if oracle
+                && pick.width < check_width
+                && !label_holds_in_isolation(&scene, meshes, &gripper, pick, &cfg.execution)
+            {
+                failed_physics += 1;
+                return false;
+            }
             if !cfg.skip_colliding_pregrasps {
                 return true;
             }
-            let free =
-                !pregrasp_collides(&scene, &gripper, &GraspCommand::from(pick), &cfg.execution);
+            let free = !pregrasp_collides(&scene, &gripper, &command, &cfg.execution);
             skipped_in_simulation += usize::from(!free);
             free
         })?;
@@ -508,6 +531,7 @@ pub fn clear_scene(
                 .map(|t| TouchRecord::new(t, target.as_ref())),
             target,
             pregrasps_skipped: skipped_in_simulation,
+            labels_failed_physics: failed_physics,
             depth_scale: scale.map(|s| s.scale),
             render_ms,
             fusion_ms,
@@ -542,37 +566,6 @@ pub fn clear_scene(
         remaining_objects: RemainingObject::of_scene(&scene),
     };
     Ok(SceneRun { attempts, summary })
-}
-
-/// The ground-truth labels of `scene` (clean `rendering` from `camera`) as grasp configurations
-/// ([`Detector::Oracle`]).
-fn oracle_configurations(
-    scene: &Scene,
-    camera: &CameraModel,
-    rendering: &Rendering,
-    cfg: &ProtocolConfig,
-    seed: u64,
-) -> Vec<GraspConfiguration> {
-    let gen = &cfg.scenes;
-    generate_labels(
-        scene,
-        camera,
-        rendering,
-        &gen.cell.gripper,
-        &gen.labels,
-        seed,
-    )
-    .labels
-    .iter()
-    .map(|l| GraspConfiguration {
-        contact: l.contact,
-        baseline: l.baseline,
-        collision_scores: l.collision_free.map(|free| if free { 1.0 } else { 0.0 }),
-        width: l.width,
-        quality: l.quality,
-        kappa: 0.0,
-    })
-    .collect()
 }
 
 fn ms(t: Instant) -> f64 {

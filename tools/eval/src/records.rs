@@ -336,6 +336,7 @@ mod tests {
             approach_touch: None,
             target: None,
             pregrasps_skipped: 0,
+            labels_failed_physics: 0,
             depth_scale: None,
             render_ms: 1.0,
             fusion_ms: 2.0,

@@ -1,8 +1,8 @@
 //! Grasp execution on single analytic objects with known answers.
 use nalgebra::{Point3, Vector3};
 use psgrasp_eval::{
-    execute_grasp, execute_grasp_traced, ExecutionConfig, GraspCommand, GraspOutcome, HandPart,
-    Phase, TraceSample,
+    execute_grasp, execute_grasp_traced, verify_grasp_in_isolation, ExecutionConfig, GraspCommand,
+    GraspOutcome, HandPart, Phase, TraceSample,
 };
 use psgrasp_geometry::{BinModel, GripperModel};
 use psgrasp_sim::{MeshLibrary, Scene};
@@ -273,4 +273,70 @@ fn a_trace_follows_the_phases_and_leaves_the_outcome_unchanged() {
     let rise = last.workspace_from_objects[0].translation.z
         - scene.objects()[0].workspace_from_object.translation.z;
     assert!(rise > 0.5 * cfg.lift_height_m, "rise {rise}");
+}
+
+fn verify(scene: &Scene, cmd: &GraspCommand, object: usize) -> GraspOutcome {
+    verify_grasp_in_isolation(
+        scene,
+        &MeshLibrary::default(),
+        &GripperModel::default(),
+        cmd,
+        object,
+        &ExecutionConfig::default(),
+    )
+    .unwrap()
+}
+
+#[test]
+fn the_isolated_check_holds_good_grasps_and_leaves_the_scene_out() {
+    // A centred grasp across a 40 mm box holds; 100 mm beside it nothing is held.
+    let scene = boxes_on_floor(&[([0.02, 0.02, 0.02], [0.0, 0.0])]);
+    let good = top_down(&scene, 0, 0.06);
+    assert_eq!(verify(&scene, &good, 0), GraspOutcome::Success);
+    let mut miss = good;
+    miss.workspace_from_gripper.translation.vector.y += 0.1;
+    assert_eq!(verify(&scene, &miss, 0), GraspOutcome::NothingHeld);
+
+    // Two boxes in one opening: a double grasp in the scene, but the check sees only the
+    // object it is asked about, so the label on it holds.
+    let two = boxes_on_floor(&[
+        ([0.0125, 0.02, 0.02], [-0.0135, 0.0]),
+        ([0.0125, 0.02, 0.02], [0.0135, 0.0]),
+    ]);
+    let c = BinModel::default().floor_center;
+    let cmd = GraspCommand {
+        workspace_from_gripper: pose(
+            Point3::new(c.x, c.y, c.z + 0.02),
+            Vector3::x(),
+            -Vector3::z(),
+        ),
+        opening_m: 0.075,
+        pregrasp_distance_m: 0.08,
+    };
+    assert_eq!(run(&two, &cmd).report.outcome, GraspOutcome::DoubleGrasp);
+    assert_eq!(verify(&two, &cmd, 0), GraspOutcome::Success);
+    assert_eq!(verify(&two, &cmd, 1), GraspOutcome::Success);
+}
+
+#[test]
+fn the_isolated_check_closes_without_gravity() {
+    // A box 60 mm above the floor: in the scene it has fallen before the hand arrives; in the
+    // check it floats where the label saw it until the lift switches gravity on.
+    let floor = boxes_on_floor(&[([0.02, 0.02, 0.02], [0.0, 0.0])]);
+    let mut desc = floor.description().clone();
+    desc.objects[0].workspace_from_object.translation.vector.z += 0.06;
+    let raised = Scene::with_meshes(desc, &MeshLibrary::default()).unwrap();
+    let cmd = top_down(&raised, 0, 0.06);
+    assert_eq!(verify(&raised, &cmd, 0), GraspOutcome::Success);
+    assert_ne!(run(&raised, &cmd).report.outcome, GraspOutcome::Success);
+    // An object index the scene does not have is an error, not a panic.
+    assert!(verify_grasp_in_isolation(
+        &raised,
+        &MeshLibrary::default(),
+        &GripperModel::default(),
+        &cmd,
+        5,
+        &ExecutionConfig::default(),
+    )
+    .is_err());
 }

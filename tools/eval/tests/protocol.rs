@@ -231,3 +231,23 @@ fn pregrasps_colliding_in_simulation_are_skipped_not_failed() {
         "the paper's selection should have skipped colliding picks"
     );
 }
+
+#[test]
+fn the_oracle_physics_check_is_off_by_default_and_its_width_is_checked() {
+    let cfg: psgrasp_eval::ProtocolConfig =
+        toml::from_str("[oracle]\nphysics_check_max_width_m = 0.02\n").unwrap();
+    assert_eq!(cfg.oracle.physics_check_max_width_m, 0.02);
+    assert!(cfg.validate().is_ok());
+    assert_eq!(
+        psgrasp_eval::ProtocolConfig::default()
+            .oracle
+            .physics_check_max_width_m,
+        0.0
+    );
+    let bad: psgrasp_eval::ProtocolConfig =
+        toml::from_str("[oracle]\nphysics_check_max_width_m = -0.01\n").unwrap();
+    let err = bad.validate().unwrap_err().to_string();
+    assert!(err.contains("oracle.physics_check_max_width_m"), "{err}");
+    // Unknown keys in the table are refused, naming them.
+    assert!(toml::from_str::<psgrasp_eval::ProtocolConfig>("[oracle]\nwidth = 1\n").is_err());
+}

@@ -43,7 +43,7 @@ mod sequence;
 mod world;
 
 pub use config::ExecutionConfig;
-pub use sequence::{execute_grasp, execute_grasp_traced};
+pub use sequence::{execute_grasp, execute_grasp_traced, verify_grasp_in_isolation};
 
 use crate::EvalError;
 use nalgebra::{Isometry3, Translation3, Vector3};

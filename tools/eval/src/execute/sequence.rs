@@ -3,7 +3,7 @@ use super::hand::{
     finger_speeds, fingers_touch, first_touch, hand_opening, holding_distance, insert_hand,
     move_palm, touches_per_finger, Hand,
 };
-use super::world::{collect_scene, execution_world, insert_scene, settle};
+use super::world::{collect_scene, execution_world, insert_lone_object, insert_scene, settle};
 use super::{
     pregrasp_collides, pregrasp_pose, validate_command, ApproachTouch, Execution, ExecutionConfig,
     ExecutionReport, GraspCommand, GraspOutcome, Phase, TraceSample,
@@ -11,7 +11,7 @@ use super::{
 use crate::EvalError;
 use nalgebra::{Isometry3, Translation3, Vector3};
 use psgrasp_geometry::GripperModel;
-use psgrasp_sim::convert::pose_from_glam;
+use psgrasp_sim::convert::{pose_from_glam, vec_to_glam};
 use psgrasp_sim::{MeshLibrary, Scene};
 use rapier3d::prelude::{JointAxis, MotorModel, PhysicsWorld, RigidBodyHandle};
 
@@ -25,6 +25,49 @@ pub fn execute_grasp(
     cfg: &ExecutionConfig,
 ) -> Result<Execution, EvalError> {
     execute_grasp_traced(scene, meshes, gripper, command, cfg, None)
+}
+
+/// ACRONYM's check of a grasp label (the paper's labels are verified this way): object
+/// `object` of `scene` alone, free-floating at its pose without gravity and without the bin or
+/// the other objects, the hand approaching from the pre-grasp pose and closing; gravity is
+/// switched on for the lift and hold, and the grasp holds when the object is still between the
+/// pads at the end ([`GraspOutcome::Success`]). What a label checked so says is that the pads
+/// hold the object, not that the grasp can be reached in the scene (the collision flags).
+/// Deterministic.
+pub fn verify_grasp_in_isolation(
+    scene: &Scene,
+    meshes: &MeshLibrary,
+    gripper: &GripperModel,
+    command: &GraspCommand,
+    object: usize,
+    cfg: &ExecutionConfig,
+) -> Result<GraspOutcome, EvalError> {
+    cfg.validate()?;
+    validate_command(command, gripper)?;
+    let opening = command.opening_m.min(gripper.max_opening_m);
+    let mut world = execution_world(cfg);
+    let gravity = Vector3::new(world.gravity.x, world.gravity.y, world.gravity.z);
+    world.gravity = vec_to_glam(&Vector3::zeros());
+    let objects = [insert_lone_object(
+        &mut world,
+        scene.description(),
+        object,
+        meshes,
+        cfg,
+    )?];
+    let pregrasp = pregrasp_pose(command, command.pregrasp_distance_m);
+    let hand = insert_hand(&mut world, gripper, &pregrasp, opening, cfg);
+    let motion = run_motion(
+        &mut world,
+        &hand,
+        &objects,
+        command,
+        opening,
+        cfg,
+        Some(gravity),
+        &mut |_, _, _, _, _| {},
+    );
+    Ok(motion.outcome)
 }
 
 /// The state after a step, for a trace.
@@ -93,6 +136,77 @@ pub fn execute_grasp_traced(
     let mut world = execution_world(cfg);
     let objects = insert_scene(&mut world, desc, meshes, cfg)?;
     let hand = insert_hand(&mut world, gripper, &pregrasp, opening, cfg);
+    let Motion {
+        outcome,
+        lifted,
+        final_opening,
+        touch,
+        mut steps,
+    } = run_motion(
+        &mut world,
+        &hand,
+        &objects,
+        command,
+        opening,
+        cfg,
+        None,
+        &mut record,
+    );
+
+    // Remove the hand (and the held object), let the rest settle.
+    for b in [hand.palm, hand.fingers[0], hand.fingers[1]] {
+        world.remove_body(b);
+    }
+    let removed_object = (outcome == GraspOutcome::Success).then(|| lifted[0]);
+    if let Some(i) = removed_object {
+        world.remove_body(objects[i]);
+    }
+    let (settle_steps, settled) = settle(&mut world, &objects, removed_object, cfg);
+    steps += settle_steps;
+
+    let (scene_after, lost_objects) = collect_scene(&world, desc, &objects, removed_object);
+    Ok(Execution {
+        report: ExecutionReport {
+            outcome,
+            removed_object,
+            lifted_objects: lifted,
+            lost_objects,
+            final_opening_m: final_opening,
+            steps,
+            settled,
+            approach_touch: touch,
+        },
+        scene_after,
+    })
+}
+
+/// What the approach, close, lift and hold of one attempt did.
+struct Motion {
+    outcome: GraspOutcome,
+    lifted: Vec<usize>,
+    final_opening: f32,
+    touch: Option<ApproachTouch>,
+    steps: usize,
+}
+
+/// Called after every physics step with the world, the hand, the objects, the phase and the
+/// step count (a trace, or nothing).
+type StepRecorder<'a> = dyn FnMut(&PhysicsWorld, &Hand, &[RigidBodyHandle], Phase, usize) + 'a;
+
+/// Approach from the pre-grasp pose, close, lift and hold, and judge (steps 2–5 of the module
+/// docs) with the hand already at the pre-grasp pose. `gravity_from_lift`: the gravity switched
+/// on when the lift starts (ACRONYM's check runs the approach and the closing without it).
+#[allow(clippy::too_many_arguments)]
+fn run_motion(
+    world: &mut PhysicsWorld,
+    hand: &Hand,
+    objects: &[RigidBodyHandle],
+    command: &GraspCommand,
+    opening: f32,
+    cfg: &ExecutionConfig,
+    gravity_from_lift: Option<Vector3<f32>>,
+    record: &mut StepRecorder<'_>,
+) -> Motion {
     let mut steps = 0usize;
 
     // Approach.
@@ -105,12 +219,12 @@ pub fn execute_grasp_traced(
         let t = s as f32 / n_approach as f32;
         let short = distance * (1.0 - t);
         let pose = pregrasp_pose(command, short);
-        move_palm(&mut world, &hand, &pose);
+        move_palm(world, hand, &pose);
         world.step();
         steps += 1;
-        record(&world, &hand, &objects, Phase::Approach, steps);
+        record(world, hand, objects, Phase::Approach, steps);
         if cfg.abort_on_approach_contact {
-            if let Some((part, object)) = first_touch(&world, &hand, cfg.touch_distance_m) {
+            if let Some((part, object)) = first_touch(world, hand, cfg.touch_distance_m) {
                 touch = Some(ApproachTouch {
                     part,
                     object,
@@ -146,8 +260,8 @@ pub fn execute_grasp_traced(
         for _ in 0..max_close {
             world.step();
             steps += 1;
-            record(&world, &hand, &objects, Phase::Close, steps);
-            let speed = finger_speeds(&world, &hand);
+            record(world, hand, objects, Phase::Close, steps);
+            let speed = finger_speeds(world, hand);
             if speed < cfg.finger_stopped_speed_m_s {
                 stopped += 1;
                 if stopped > stopped_needed {
@@ -158,6 +272,9 @@ pub fn execute_grasp_traced(
             }
         }
         // Lift and hold.
+        if let Some(g) = gravity_from_lift {
+            world.gravity = vec_to_glam(&g);
+        }
         let start_z: Vec<f32> = objects
             .iter()
             .map(|h| world.bodies.get(*h).map_or(0.0, |b| b.translation().z))
@@ -169,18 +286,18 @@ pub fn execute_grasp_traced(
                 Translation3::from(reached.translation.vector + Vector3::z() * dz),
                 reached.rotation,
             );
-            move_palm(&mut world, &hand, &pose);
+            move_palm(world, hand, &pose);
             world.step();
             steps += 1;
-            record(&world, &hand, &objects, Phase::Lift, steps);
+            record(world, hand, objects, Phase::Lift, steps);
         }
         let n_hold = (cfg.hold_time_s / cfg.dt_s).ceil() as usize;
         for _ in 0..n_hold {
             world.step();
             steps += 1;
-            record(&world, &hand, &objects, Phase::Hold, steps);
+            record(world, hand, objects, Phase::Hold, steps);
         }
-        final_opening = hand_opening(&world, &hand);
+        final_opening = hand_opening(world, hand);
         lifted = objects
             .iter()
             .enumerate()
@@ -191,7 +308,7 @@ pub fn execute_grasp_traced(
             })
             .map(|(i, _)| i)
             .collect::<Vec<_>>();
-        let touching = fingers_touch(&world, &hand, holding_distance(cfg));
+        let touching = fingers_touch(world, hand, holding_distance(cfg));
         outcome = match lifted.as_slice() {
             [] => GraspOutcome::NothingHeld,
             [i] if touching.contains(i) && final_opening > cfg.min_opening_m => {
@@ -202,29 +319,11 @@ pub fn execute_grasp_traced(
         };
     }
 
-    // Remove the hand (and the held object), let the rest settle.
-    for b in [hand.palm, hand.fingers[0], hand.fingers[1]] {
-        world.remove_body(b);
+    Motion {
+        outcome,
+        lifted,
+        final_opening,
+        touch,
+        steps,
     }
-    let removed_object = (outcome == GraspOutcome::Success).then(|| lifted[0]);
-    if let Some(i) = removed_object {
-        world.remove_body(objects[i]);
-    }
-    let (settle_steps, settled) = settle(&mut world, &objects, removed_object, cfg);
-    steps += settle_steps;
-
-    let (scene_after, lost_objects) = collect_scene(&world, desc, &objects, removed_object);
-    Ok(Execution {
-        report: ExecutionReport {
-            outcome,
-            removed_object,
-            lifted_objects: lifted,
-            lost_objects,
-            final_opening_m: final_opening,
-            steps,
-            settled,
-            approach_touch: touch,
-        },
-        scene_after,
-    })
 }

@@ -74,6 +74,33 @@ pub(super) fn insert_scene(
     Ok(handles)
 }
 
+/// Object `index` of `desc` alone (no bin, no other objects), tagged as object 0 of the world.
+pub(super) fn insert_lone_object(
+    world: &mut PhysicsWorld,
+    desc: &SceneDescription,
+    index: usize,
+    meshes: &MeshLibrary,
+    cfg: &ExecutionConfig,
+) -> Result<RigidBodyHandle, EvalError> {
+    let obj = desc.objects.get(index).ok_or(EvalError::InvalidConfig {
+        field: "object",
+        reason: "the scene has no object of that index",
+    })?;
+    let shape = obj.spec.build_physics_shape(meshes)?;
+    let tags = ColliderTags {
+        groups: world_groups(),
+        user_data: 1,
+    };
+    Ok(insert_object(
+        world,
+        shape,
+        &obj.workspace_from_object,
+        &cfg.objects,
+        false,
+        tags,
+    ))
+}
+
 /// Steps until every remaining object rests or the settling time runs out.
 pub(super) fn settle(
     world: &mut PhysicsWorld,
