@@ -5,7 +5,6 @@ use crate::protocol::{PickTarget, ProtocolConfig};
 use nalgebra::Point3;
 use psgrasp_datagen::generate_labels;
 use psgrasp_geometry::{CameraModel, GraspConfiguration, GripperModel};
-use psgrasp_selection::SelectedGrasp;
 use psgrasp_sim::{MeshLibrary, Rendering, Scene};
 use serde::{Deserialize, Serialize};
 
@@ -27,26 +26,19 @@ impl Default for OracleConfig {
     }
 }
 
-/// Whether `pick` holds the object nearest to its TCP in ACRONYM's check
+/// Whether `command` holds the object nearest to its TCP in ACRONYM's check
 /// ([`verify_grasp_in_isolation`]); `false` when no object is near or the check fails to run.
 pub(crate) fn label_holds_in_isolation(
     scene: &Scene,
     meshes: &MeshLibrary,
     gripper: &GripperModel,
-    pick: &SelectedGrasp,
+    command: &GraspCommand,
     cfg: &ExecutionConfig,
 ) -> bool {
-    let tcp = Point3::from(pick.workspace_from_gripper.translation.vector);
+    let tcp = Point3::from(command.workspace_from_gripper.translation.vector);
     PickTarget::nearest(scene, &tcp).is_some_and(|t| {
-        verify_grasp_in_isolation(
-            scene,
-            meshes,
-            gripper,
-            &GraspCommand::from(pick),
-            t.index,
-            cfg,
-        )
-        .is_ok_and(|o| o.is_success())
+        verify_grasp_in_isolation(scene, meshes, gripper, command, t.index, cfg)
+            .is_ok_and(|o| o.is_success())
     })
 }
 

@@ -472,7 +472,7 @@ pub fn clear_scene(
             let command = GraspCommand::from(pick);
             if oracle
                 && pick.width < check_width
-                && !label_holds_in_isolation(&scene, meshes, &gripper, pick, &cfg.execution)
+                && !label_holds_in_isolation(&scene, meshes, &gripper, &command, &cfg.execution)
             {
                 failed_physics += 1;
                 return false;

@@ -45,6 +45,25 @@ fn close_after_touch() -> ExecutionConfig {
     }
 }
 
+/// Two 25 mm boxes side by side and a straight-down grasp whose 75 mm opening spans both.
+fn two_boxes_in_one_opening() -> (Scene, GraspCommand) {
+    let two = boxes_on_floor(&[
+        ([0.0125, 0.02, 0.02], [-0.0135, 0.0]),
+        ([0.0125, 0.02, 0.02], [0.0135, 0.0]),
+    ]);
+    let c = BinModel::default().floor_center;
+    let cmd = GraspCommand {
+        workspace_from_gripper: pose(
+            Point3::new(c.x, c.y, c.z + 0.02),
+            Vector3::x(),
+            -Vector3::z(),
+        ),
+        opening_m: 0.075,
+        pregrasp_distance_m: 0.08,
+    };
+    (two, cmd)
+}
+
 #[test]
 fn good_grasp_lifts_a_box_and_removes_it() {
     let scene = boxes_on_floor(&[([0.02, 0.03, 0.025], [0.0, 0.0])]);
@@ -194,20 +213,7 @@ fn closing_on_nothing_and_double_grasps_fail() {
     assert_eq!(ex.scene_after.objects.len(), 1);
 
     // Two 25 mm boxes side by side inside one 70 mm opening.
-    let two = boxes_on_floor(&[
-        ([0.0125, 0.02, 0.02], [-0.0135, 0.0]),
-        ([0.0125, 0.02, 0.02], [0.0135, 0.0]),
-    ]);
-    let c = BinModel::default().floor_center;
-    let cmd = GraspCommand {
-        workspace_from_gripper: pose(
-            Point3::new(c.x, c.y, c.z + 0.02),
-            Vector3::x(),
-            -Vector3::z(),
-        ),
-        opening_m: 0.075,
-        pregrasp_distance_m: 0.08,
-    };
+    let (two, cmd) = two_boxes_in_one_opening();
     let ex = run(&two, &cmd);
     assert_eq!(ex.report.outcome, GraspOutcome::DoubleGrasp);
     assert_eq!(ex.report.lifted_objects, vec![0, 1]);
@@ -299,20 +305,7 @@ fn the_isolated_check_holds_good_grasps_and_leaves_the_scene_out() {
 
     // Two boxes in one opening: a double grasp in the scene, but the check sees only the
     // object it is asked about, so the label on it holds.
-    let two = boxes_on_floor(&[
-        ([0.0125, 0.02, 0.02], [-0.0135, 0.0]),
-        ([0.0125, 0.02, 0.02], [0.0135, 0.0]),
-    ]);
-    let c = BinModel::default().floor_center;
-    let cmd = GraspCommand {
-        workspace_from_gripper: pose(
-            Point3::new(c.x, c.y, c.z + 0.02),
-            Vector3::x(),
-            -Vector3::z(),
-        ),
-        opening_m: 0.075,
-        pregrasp_distance_m: 0.08,
-    };
+    let (two, cmd) = two_boxes_in_one_opening();
     assert_eq!(run(&two, &cmd).report.outcome, GraspOutcome::DoubleGrasp);
     assert_eq!(verify(&two, &cmd, 0), GraspOutcome::Success);
     assert_eq!(verify(&two, &cmd, 1), GraspOutcome::Success);

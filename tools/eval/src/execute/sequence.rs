@@ -11,7 +11,7 @@ use super::{
 use crate::EvalError;
 use nalgebra::{Isometry3, Translation3, Vector3};
 use psgrasp_geometry::GripperModel;
-use psgrasp_sim::convert::{pose_from_glam, vec_to_glam};
+use psgrasp_sim::convert::{pose_from_glam, vec_from_glam, vec_to_glam};
 use psgrasp_sim::{MeshLibrary, Scene};
 use rapier3d::prelude::{JointAxis, MotorModel, PhysicsWorld, RigidBodyHandle};
 
@@ -46,7 +46,7 @@ pub fn verify_grasp_in_isolation(
     validate_command(command, gripper)?;
     let opening = command.opening_m.min(gripper.max_opening_m);
     let mut world = execution_world(cfg);
-    let gravity = Vector3::new(world.gravity.x, world.gravity.y, world.gravity.z);
+    let gravity = vec_from_glam(world.gravity);
     world.gravity = vec_to_glam(&Vector3::zeros());
     let objects = [insert_lone_object(
         &mut world,

@@ -55,23 +55,34 @@ pub(super) fn insert_scene(
         user_data: USER_BIN,
     };
     insert_bin(world, &desc.bin, &cfg.objects, bin_tags);
-    let mut handles = Vec::with_capacity(desc.objects.len());
-    for (i, obj) in desc.objects.iter().enumerate() {
-        let shape = obj.spec.build_physics_shape(meshes)?;
-        let tags = ColliderTags {
-            groups: world_groups(),
-            user_data: i as u128 + 1,
-        };
-        handles.push(insert_object(
-            world,
-            shape,
-            &obj.workspace_from_object,
-            &cfg.objects,
-            false,
-            tags,
-        ));
-    }
-    Ok(handles)
+    desc.objects
+        .iter()
+        .enumerate()
+        .map(|(i, obj)| insert_scene_object(world, obj, i, meshes, cfg))
+        .collect()
+}
+
+/// `obj` as a dynamic body, its colliders tagged as the world's object `index`.
+fn insert_scene_object(
+    world: &mut PhysicsWorld,
+    obj: &SceneObject,
+    index: usize,
+    meshes: &MeshLibrary,
+    cfg: &ExecutionConfig,
+) -> Result<RigidBodyHandle, EvalError> {
+    let shape = obj.spec.build_physics_shape(meshes)?;
+    let tags = ColliderTags {
+        groups: world_groups(),
+        user_data: index as u128 + 1,
+    };
+    Ok(insert_object(
+        world,
+        shape,
+        &obj.workspace_from_object,
+        &cfg.objects,
+        false,
+        tags,
+    ))
 }
 
 /// Object `index` of `desc` alone (no bin, no other objects), tagged as object 0 of the world.
@@ -86,19 +97,7 @@ pub(super) fn insert_lone_object(
         field: "object",
         reason: "the scene has no object of that index",
     })?;
-    let shape = obj.spec.build_physics_shape(meshes)?;
-    let tags = ColliderTags {
-        groups: world_groups(),
-        user_data: 1,
-    };
-    Ok(insert_object(
-        world,
-        shape,
-        &obj.workspace_from_object,
-        &cfg.objects,
-        false,
-        tags,
-    ))
+    insert_scene_object(world, obj, 0, meshes, cfg)
 }
 
 /// Steps until every remaining object rests or the settling time runs out.
