@@ -320,6 +320,10 @@ pub fn run_event_loop(
         .map_err(|e| anyhow::anyhow!("attaching interval: {e:?}"))?;
     let mut result: Result<bool> = Ok(true);
     loop {
+        // A request latched before the WaitSet existed (during start-up) is not reported again.
+        if psgrasp_ipc::termination_requested() {
+            return Ok(LoopExit::Signal);
+        }
         let run = waitset
             .wait_and_process_once(|_id| {
                 for l in listeners {

@@ -34,7 +34,7 @@ pub use records::{
     StageStats,
 };
 pub use transport::{
-    cleanup_dead_nodes, note_termination, termination_requested, ChannelConfig, DropPolicy,
-    FramePublisher, FrameSubscriber, InputPort, IpcError, PipelineNode, ServiceNames,
-    OUTCOME_BUFFER, PROGRESS_BUFFER,
+    cleanup_dead_nodes, install_termination_handlers, note_termination, termination_requested,
+    ChannelConfig, DropPolicy, FramePublisher, FrameSubscriber, InputPort, IpcError, PipelineNode,
+    ServiceNames, OUTCOME_BUFFER, PROGRESS_BUFFER,
 };

@@ -71,6 +71,17 @@ pub fn note_termination() {
     TERMINATION_REQUESTED.store(true, Ordering::Relaxed);
 }
 
+/// Installs iceoryx2's SIGINT/SIGTERM handlers now and latches a request that already came.
+/// iceoryx2 installs them only at its first termination check, not when a node is created: a
+/// signal between a node's creation and that first check took the default action and killed the
+/// process with its node left behind (a SIGINT during `psgrasp stress` start-up left all five
+/// nodes). [`PipelineNode::new`] calls this before it creates the node; calling it again is cheap.
+pub fn install_termination_handlers() {
+    if iceoryx2_bb_posix::signal::SignalHandler::termination_requested() {
+        note_termination();
+    }
+}
+
 /// Outcomes a subscriber of `picks` can queue: at least twice the most frames in flight, so
 /// the ledger's error records for every frame in flight fit next to their picks.
 pub const OUTCOME_BUFFER: usize = 256;
@@ -179,6 +190,7 @@ impl PipelineNode {
     /// Creates the node `node_name` for pipeline `pipeline`, cleaning up resources of dead
     /// processes first (a crashed stage must not leave the next one stuck).
     pub fn new(node_name: &str, pipeline: &str, channel: ChannelConfig) -> Result<Self, IpcError> {
+        install_termination_handlers();
         cleanup_dead_nodes();
         let name =
             NodeName::new(node_name).map_err(|_| IpcError::BadName(node_name.to_string()))?;
