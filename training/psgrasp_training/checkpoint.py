@@ -32,7 +32,7 @@ class DatasetInfo:
     dims: list[int] = field(default_factory=lambda: [64, 64, 64])
     voxel_size_m: float = 0.009
     max_opening_m: float = 0.08
-    approach_depth_m: float = 0.039
+    approach_depth_m: float = 0.0445
     train_scenes: int = 0
     val_scenes: int = 0
 

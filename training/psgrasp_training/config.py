@@ -49,8 +49,9 @@ class GridConfig:
     voxel_size_m: float = 0.009
     #: Maximum gripper opening (m); the width head is max_opening·sigmoid.
     max_opening_m: float = 0.08
-    #: Distance from the TCP to the approach point, finger length − tip beyond TCP (m).
-    approach_depth_m: float = 0.039
+    #: Distance from the TCP to the approach point, finger length − tip beyond TCP (m): 44.5 mm
+    #: for the default gripper, the real Franka hand (54 − 9.5 mm).
+    approach_depth_m: float = 0.0445
 
 
 @dataclass
@@ -73,6 +74,11 @@ class DataConfig:
     #: export and inference keep the whole grid (the network is fully convolutional). Each size
     #: must be a multiple of 2^(levels−1) and at most the grid's.
     crop: list[int] = field(default_factory=list)
+    #: With data.crop: the share of steps whose crop is centred on a random observed-surface voxel
+    #: (non-zero normal) instead of a ground-truth contact voxel, so that the contact head also
+    #: sees surfaces without contacts (walls, floor, faces too wide to grasp) in the proportion
+    #: the whole grid shows them. 0 (default): every crop holds a contact.
+    crop_surface_share: float = 0.0
 
 
 @dataclass
@@ -259,6 +265,8 @@ class Config:
             if len(crop) != 3 or any(c < 1 or c > d or c % 2 ** (m.levels - 1) for c, d in zip(crop, g.dims)):
                 raise ConfigError(f"data.crop {crop} must be three sizes ≤ grid.dims {g.dims}, each a multiple of "
                                   f"2^(levels-1) = {2 ** (m.levels - 1)}")
+        if not 0.0 <= self.data.crop_surface_share <= 1.0:
+            raise ConfigError(f"data.crop_surface_share {self.data.crop_surface_share} must lie in [0, 1]")
         c = self.contacts
         if c.rule not in ("jittered-contact", "voxel-uniform"):
             raise ConfigError(f"contacts.rule: {c.rule!r} is not 'jittered-contact' or 'voxel-uniform'")

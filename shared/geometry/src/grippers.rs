@@ -4,8 +4,9 @@
 //! Every part of psgrasp that needs the hand — label generation, grasp selection, the simulated
 //! hand of the evaluation, the model card check — takes its [`GripperModel`] from here, so one
 //! file defines it. A `[gripper]` table reads `model = "franka"` (the real Franka hand),
-//! `model = "robotiq-2f85"` or `model = "franka-15mm"` (the hand the shipped models were trained
-//! with, the default while they are shipped: [`DEFAULT_GRIPPER`]); any of the four size keys
+//! (the default: [`DEFAULT_GRIPPER`]), `model = "robotiq-2f85"` or `model = "franka-15mm"` (the
+//! hand psgrasp modelled until 2026-12, which `models/ablation-wo-kappa` and `models/vgn` were
+//! trained with); any of the four size keys
 //! given beside it replaces that file's value (a custom hand is a table with all four).
 use crate::GripperModel;
 use serde::Deserialize;
@@ -27,9 +28,9 @@ pub const GRIPPER_FILES: [(&str, &str); 3] = [
     ),
 ];
 
-/// The name of the default gripper file: the hand the shipped models were trained with, until
-/// the models retrained for the real Franka hand (`franka`) replace them.
-pub const DEFAULT_GRIPPER: &str = "franka-15mm";
+/// The name of the default gripper file: the real Franka hand, which the shipped model
+/// (`models/default`) was trained with.
+pub const DEFAULT_GRIPPER: &str = "franka";
 
 /// A `[gripper]` table: a built-in gripper file and keys that replace its values.
 #[derive(Debug, Clone, Default, PartialEq, Deserialize)]
@@ -136,7 +137,7 @@ mod tests {
     #[test]
     fn the_default_hand_is_the_default_file() {
         assert_eq!(GripperModel::default(), named(DEFAULT_GRIPPER).unwrap());
-        // The real hand and the shipped models' hand differ only in the fingertip depth.
+        // The real hand and the hand modelled until 2026-12 differ only in the fingertip depth.
         let (real, old) = (named("franka").unwrap(), named("franka-15mm").unwrap());
         assert_eq!(
             GripperModel {

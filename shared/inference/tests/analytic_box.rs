@@ -141,8 +141,10 @@ fn approaches_into_the_floor_collide_and_straight_down_is_free() {
     let grid = box_grid(0.04, 0.06, 0.05);
     let mut be = backend(AnalyticConfig::default());
     let configs = be.infer(&grid.view(), 3).unwrap();
-    // Contacts 22.5 mm above the floor: straight-down fingertips stay 7.5 mm above it, but a
-    // horizontal approach puts the 63 mm thick palm through the floor.
+    // Contacts 22.5 mm above the floor: straight-down fingertips (9.5 mm past the TCP on the
+    // default hand) stay 13 mm above it, but a horizontal approach puts the 63 mm thick palm
+    // through the floor. (The approaches tilted 10.6° down from horizontal clear it with the
+    // real hand's fingertip depth; with the 15 mm fingertips they did not.)
     let low: Vec<_> = configs
         .iter()
         .filter(|c| (c.contact.z - FLOOR_Z - 0.0225).abs() < 0.002)
@@ -161,7 +163,7 @@ fn approaches_into_the_floor_collide_and_straight_down_is_free() {
         );
         let mut horizontal = 0;
         for (i, a) in approaches.iter().enumerate() {
-            if a.z.abs() < 0.2 {
+            if a.z.abs() < 0.05 {
                 horizontal += 1;
                 assert_eq!(
                     c.collision_scores[i], 0.0,

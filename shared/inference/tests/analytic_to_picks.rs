@@ -56,9 +56,19 @@ fn picks_from_the_analytic_backend_hold_an_object_and_clear_the_scene() {
         &SelectionConfig::default(),
     )
     .unwrap();
-    // With the default pick spacing the picks spread: one per object here (the objects are
-    // 9-18 cm apart and small enough that no second grasp on one lies 5 cm from its first).
-    assert_eq!(sel.picks.len(), 4, "{:?}", sel.rejected);
+    // With the default pick spacing the picks spread over the objects (9-18 cm apart): every
+    // object gets one, and no two picks lie closer than the spacing (the real hand's deeper
+    // reach finds a second grasp 5 cm from the first on the 9 cm tall box).
+    let spacing = SelectionConfig::default().pick_spacing_m;
+    assert!((4..=6).contains(&sel.picks.len()), "{:?}", sel.rejected);
+    for (i, a) in sel.picks.iter().enumerate() {
+        for b in &sel.picks[i + 1..] {
+            let d = (a.workspace_from_gripper.translation.vector
+                - b.workspace_from_gripper.translation.vector)
+                .norm();
+            assert!(d >= spacing - 1e-4, "two picks {d} m apart");
+        }
+    }
     let centres: Vec<Point2<f32>> = [(0.2, 0.2), (0.38, 0.3), (0.27, 0.36), (0.3, 0.2)]
         .map(|(x, y)| Point2::new(x, y))
         .to_vec();
@@ -76,7 +86,8 @@ fn picks_from_the_analytic_backend_hold_an_object_and_clear_the_scene() {
         })
         .collect();
     hit.sort();
-    assert_eq!(hit, vec![0, 1, 2, 3], "one pick on each object");
+    hit.dedup();
+    assert_eq!(hit, vec![0, 1, 2, 3], "a pick on each object");
     let sd = |p: &Point3<f32>| {
         scene.signed_distance(&Vector3::new(p.x as f64, p.y as f64, p.z as f64)) as f32
     };

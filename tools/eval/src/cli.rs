@@ -570,16 +570,23 @@ mod tests {
         back.scenes.cell.selection.clearance.opening_clearance_m =
             corrected.cell().selection.clearance.opening_clearance_m;
         assert_eq!(back, corrected);
-        // The Franka-fingertip variant changes the hand's tip depth, nothing else, and the
-        // models trained for the 15 mm tip are refused under it (their card's approach depth).
+        // The Franka-fingertip protocol is the wide-opening one: both take the default hand, the
+        // real Franka hand. The models trained for the 15 mm fingertip are refused under it
+        // (their card's approach depth) and run under a protocol that names `franka-15mm`.
         let franka = load_protocol(Some(&dir.join("eval-protocol-franka-fingertip.toml"))).unwrap();
         assert_eq!(franka.cell().gripper.tip_beyond_tcp_m, 0.0095);
-        let mut back = franka.clone();
-        back.scenes.cell.gripper.tip_beyond_tcp_m = wide.cell().gripper.tip_beyond_tcp_m;
-        assert_eq!(back, wide);
+        assert_eq!(franka, wide);
         let shipped = crate::DetectorSpec::for_model_dir("default", dir.join("../models/default"));
-        assert!(shipped.build(&wide).is_ok());
-        let refused = shipped
+        assert!(shipped.build(&franka).is_ok());
+        let mut old_hand = franka.clone();
+        old_hand.scenes.cell.gripper = psgrasp_geometry::grippers::named("franka-15mm").unwrap();
+        assert!(shipped.build(&old_hand).is_err());
+        // The VGN-style baseline shipped in `models/vgn` was trained for the 15 mm fingertip.
+        let old = crate::DetectorSpec::for_model_dir("vgn", dir.join("../models/vgn"));
+        if let Err(error) = old.build(&old_hand) {
+            panic!("the 15 mm VGN model under franka-15mm: {error:#}");
+        }
+        let refused = old
             .build(&franka)
             .err()
             .expect("a 15 mm model under the 9.5 mm hand");

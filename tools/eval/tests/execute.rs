@@ -136,18 +136,24 @@ fn object_wider_than_the_opening_fails_on_approach() {
 
 #[test]
 fn closing_after_a_touch_lifts_from_where_the_hand_stopped_and_never_wedges() {
-    // A 50 mm high box; the grasp pose is 20 mm too low, so the fingertips (15 mm beyond the
-    // TCP) reach the floor 10 mm before the end of the approach.
+    // A 50 mm high box; the grasp pose is 20 mm too low (TCP 5 mm above the floor), so the
+    // fingertips (9.5 mm beyond the TCP on the default hand) reach the floor 4.5 mm before the
+    // end of the approach.
+    let short_of_grasp = GripperModel::default().tip_beyond_tcp_m - 0.005;
+    assert!(short_of_grasp > 0.002);
     let scene = boxes_on_floor(&[([0.02, 0.03, 0.025], [0.0, 0.0])]);
     let mut low = top_down(&scene, 0, 0.06);
     low.workspace_from_gripper.translation.vector.z -= 0.02;
     let strict = run(&scene, &low);
     assert_eq!(strict.report.outcome, GraspOutcome::ApproachContact);
     assert!(strict.report.approach_contact());
-    // A fingertip touched the bin floor 10 mm before the grasp pose.
+    // A fingertip touched the bin floor that far before the grasp pose.
     let touch = strict.report.approach_touch.expect("touch recorded");
     assert_eq!((touch.part, touch.object), (HandPart::Finger, None));
-    assert!((touch.short_of_grasp_m - 0.01).abs() < 0.002, "{touch:?}");
+    assert!(
+        (touch.short_of_grasp_m - short_of_grasp).abs() < 0.002,
+        "{touch:?}"
+    );
     let closed = run_with(&scene, &low, &close_after_touch());
     assert!(closed.report.approach_contact());
     assert_eq!(
@@ -167,11 +173,15 @@ fn closing_after_a_touch_lifts_from_where_the_hand_stopped_and_never_wedges() {
     let wide = boxes_on_floor(&[([0.05, 0.02, 0.025], [0.0, 0.0])]);
     let ex = run_with(&wide, &top_down(&wide, 0, 0.08), &close_after_touch());
     assert!(ex.report.approach_contact());
-    // A fingertip (15 mm beyond the TCP) met the box's top (50 mm) with the TCP still 40 mm
-    // above the grasp pose (25 mm).
+    // A fingertip (`tip_beyond_tcp_m` beyond the TCP) met the box's top (50 mm) with the TCP
+    // still 25 mm + that depth above the grasp pose (25 mm).
     let touch = ex.report.approach_touch.expect("touch recorded");
     assert_eq!((touch.part, touch.object), (HandPart::Finger, Some(0)));
-    assert!((touch.short_of_grasp_m - 0.04).abs() < 0.002, "{touch:?}");
+    let short_of_top = 0.025 + GripperModel::default().tip_beyond_tcp_m;
+    assert!(
+        (touch.short_of_grasp_m - short_of_top).abs() < 0.002,
+        "{touch:?}"
+    );
     assert!(good.report.approach_touch.is_none());
     assert_eq!(
         ex.report.outcome,

@@ -577,7 +577,7 @@ pub(crate) mod tests {
           "mlp": {"feature_dim": 120, "hidden": [256, 256, 128]},
           "kappa0": 25.0, "kappa_learned": true,
           "approaches": {"count": 18, "gamma_min_rad": 1.5707963, "gamma_max_rad": 4.712389},
-          "gripper": {"max_opening_m": 0.08, "approach_depth_m": 0.039},
+          "gripper": {"max_opening_m": 0.08, "approach_depth_m": 0.0445},
           "thresholds": {"contact_probability": 0.5, "quality": 0.5, "collision": 0.5},
           "inference": {"subvoxels_per_contact": 8, "single_approach": false},
           "training": {"dataset_manifest_sha256": "abc", "scenes": 0, "iterations": 0, "seed": 0, "config": {}},
@@ -654,7 +654,7 @@ pub(crate) mod tests {
             ),
             (
                 "gripper.approach_depth_m",
-                Box::new(|c| c.gripper.approach_depth_m = 0.0392),
+                Box::new(|c| c.gripper.approach_depth_m = 0.0448),
             ),
             (
                 "inference.subvoxels_per_contact",
@@ -668,20 +668,20 @@ pub(crate) mod tests {
         }
         // Within tolerance is fine.
         let mut c = card();
-        c.gripper.approach_depth_m = 0.03905;
+        c.gripper.approach_depth_m = 0.04455;
         c.gripper.max_opening_m = 0.08009;
         pipeline_check(&c).unwrap();
     }
 
     #[test]
     fn a_card_made_for_another_gripper_file_is_refused_by_field() {
-        // The card fixture records the shipped models' hand (franka-15mm: opening 80 mm,
-        // approach depth 54 − 15 = 39 mm).
+        // The card fixture records the shipped model's hand (franka: opening 80 mm, approach
+        // depth 54 − 9.5 = 44.5 mm).
         let c = card();
         let file = |name: &str| psgrasp_geometry::grippers::named(name).unwrap();
-        c.gripper.check(&file("franka-15mm")).unwrap();
+        c.gripper.check(&file("franka")).unwrap();
         assert_eq!(
-            mismatch_field(c.gripper.check(&file("franka"))),
+            mismatch_field(c.gripper.check(&file("franka-15mm"))),
             "gripper.approach_depth_m"
         );
         assert_eq!(
