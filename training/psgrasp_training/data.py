@@ -141,15 +141,22 @@ def flip_scene(scene: Scene, flip_x: bool, flip_y: bool) -> Scene:
                    baseline=baseline, collision_free=free.contiguous())
 
 
-def crop_origin(scene: Scene, size: list[int], generator: torch.Generator) -> list[int]:
+def crop_origin(scene: Scene, size: list[int], generator: torch.Generator, surface_share: float = 0.0) -> list[int]:
     """Voxel origin of a crop of `size` that holds a ground-truth contact voxel drawn at random
-    (centred on it where the grid allows); a uniformly drawn origin in a scene without one."""
+    (centred on it where the grid allows); a uniformly drawn origin in a scene without one.
+
+    With `surface_share` > 0, that share of crops is centred on a random observed-surface voxel
+    (non-zero normal) instead, contact or not. With 0 the generator draws exactly what it drew
+    before the option existed (runs resume identically)."""
     dims = scene.dims
     room = [d - s for d, s in zip(dims, size)]
-    contacts = torch.nonzero(scene.labels == 1)
-    if len(contacts) == 0:
+    if surface_share > 0 and float(torch.rand(1, generator=generator)) < surface_share:
+        centres = torch.nonzero(scene.normals.abs().sum(0) > 0)
+    else:
+        centres = torch.nonzero(scene.labels == 1)
+    if len(centres) == 0:
         return [int(torch.randint(r + 1, (1,), generator=generator)) for r in room]
-    centre = contacts[int(torch.randint(len(contacts), (1,), generator=generator))].tolist()
+    centre = centres[int(torch.randint(len(centres), (1,), generator=generator))].tolist()
     return [min(max(c - s // 2, 0), r) for c, s, r in zip(centre, size, room)]
 
 

@@ -198,7 +198,9 @@ class GraspMlp(nn.Module):
             kappa_inv = F.softplus(raw[:, 3])
             kappa = kappa_clamp(self.kappa0 / (kappa_inv + self.kappa_eps), self.kappa0, 4.0 * self.kappa0)
         else:
-            kappa = torch.full_like(width, self.kappa0)
+            # `width * 0 + κ0`, not `full_like`: the latter exports as Shape/ConstantOfShape,
+            # which the native runtime's MLP subset does not take (width is always finite).
+            kappa = width * 0.0 + self.kappa0
         return {
             "baseline": baseline,
             "kappa": kappa,

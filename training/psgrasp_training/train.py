@@ -160,7 +160,8 @@ def scene_for_step(ds: SceneDataset, cfg: Config, step: int) -> tuple[Scene, tor
         fx, fy = (torch.rand(2, generator=g) < 0.5).tolist()
         scene = flip_scene(scene, fx, fy)
     if cfg.data.crop:
-        scene = crop_scene(scene, crop_origin(scene, cfg.data.crop, g), cfg.data.crop)
+        origin = crop_origin(scene, cfg.data.crop, g, cfg.data.crop_surface_share)
+        scene = crop_scene(scene, origin, cfg.data.crop)
     return scene, g
 
 

@@ -124,6 +124,42 @@ def test_crops_keep_labels_normals_and_grasps_aligned(tmp_path):
         crop_scene(scene, [10, 0, 0], size)
 
 
+def test_surface_crops_centre_on_observed_surface_and_leave_contact_crops_unchanged(tmp_path):
+    tensors, meta = make_scene(0, np.random.default_rng(2))
+    scene = scene_from_tensors(tmp_path, tensors, meta)
+    size = [8, 8, 8]
+    surface = scene.normals.abs().sum(0) > 0
+    half = torch.tensor([s // 2 for s in size])
+    room = torch.tensor([d - s for d, s in zip(scene.dims, size)])
+    for seed in range(12):
+        # Share 1: every crop is centred on an observed-surface voxel (where the grid allows it).
+        origin = torch.tensor(crop_origin(scene, size, torch.Generator().manual_seed(seed), surface_share=1.0))
+        centres = torch.nonzero(surface)
+        assert ((origin == (centres - half).clamp(min=0).minimum(room)).all(1)).any()
+        # Share 0 draws what the contact crops always drew (a resumed run continues identically).
+        a = crop_origin(scene, size, torch.Generator().manual_seed(seed))
+        b = crop_origin(scene, size, torch.Generator().manual_seed(seed), surface_share=0.0)
+        assert a == b
+    # Surface crops reach voxels no contact crop is centred on (the floor, faces without contacts).
+    contact_origins = {tuple(crop_origin(scene, size, torch.Generator().manual_seed(k))) for k in range(200)}
+    surface_origins = {tuple(crop_origin(scene, size, torch.Generator().manual_seed(k), surface_share=1.0))
+                       for k in range(200)}
+    assert surface_origins - contact_origins
+
+
+def test_crop_surface_share_is_checked(tiny_cfg):
+    from psgrasp_training.config import ConfigError
+
+    cfg = tiny_cfg()
+    cfg.data.crop = [8, 8, 8]
+    cfg.data.crop_surface_share = 0.5
+    cfg.validate()
+    for bad in (-0.1, 1.5):
+        cfg.data.crop_surface_share = bad
+        with pytest.raises(ConfigError, match="crop_surface_share"):
+            cfg.validate()
+
+
 def test_crop_sizes_are_checked_against_grid_and_levels(tiny_cfg):
     from psgrasp_training.config import ConfigError
 

@@ -27,3 +27,25 @@ def test_mlp_outputs_and_ranges():
     cos = GraspNet(config_from_dict({"variant": "1app-cosine", "model": {"levels": 2, "base_channels": 4},
                                      "grid": {"dims": [8, 8, 8]}})).eval()
     assert torch.equal(cos.mlp(torch.randn(5, 12))["kappa"], torch.full((5,), 25.0))
+
+
+#: The operators the Rust native runtime's MLP subset takes (`shared/inference/src/native/mlp.rs`).
+NATIVE_MLP_OPERATORS = {"Gemm", "MatMul", "Add", "Sub", "Mul", "Div", "Relu", "Slice", "Gather", "ReduceSum", "Sqrt",
+                        "Sigmoid", "Softplus", "Reciprocal", "Exp", "Clip", "Constant"}
+
+
+def test_every_variant_exports_an_mlp_the_native_runtime_takes(tmp_path):
+    import onnx
+
+    from psgrasp_training.export import _export_onnx
+    from psgrasp_training.model import MLP_OUTPUTS
+
+    for variant in ("8app", "1app-kappa", "1app-cosine"):
+        cfg = config_from_dict({"variant": variant, "model": {"levels": 2, "base_channels": 4, "mlp_hidden": [8]},
+                                "grid": {"dims": [8, 8, 8]}})
+        net = GraspNet(cfg).eval()
+        path = tmp_path / f"{variant}.onnx"
+        _export_onnx(net.mlp, (torch.randn(5, cfg.feature_dim()),), path, ["features"], list(MLP_OUTPUTS),
+                     {"features": {0: "n"}})
+        operators = {node.op_type for node in onnx.load(str(path)).graph.node}
+        assert operators <= NATIVE_MLP_OPERATORS, (variant, operators - NATIVE_MLP_OPERATORS)
