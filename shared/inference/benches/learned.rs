@@ -9,12 +9,13 @@
 //! (`--features ort` with `ORT_DYLIB_PATH=/path/to/libonnxruntime.so` adds the ort rows).
 //! The model directory is the argument, else `$PSGRASP_MODEL_DIR`, else `models/default` in the
 //! repository. `PSGRASP_BENCH_ITERS` sets the timed runs per row (default 5), `PSGRASP_BENCH_THREADS`
-//! a comma-separated list of thread counts (default `1,2`).
+//! a comma-separated list of thread counts (default `1,2`), `PSGRASP_BENCH_GRIPPER` the hand the
+//! model was trained for (default `franka`; `franka-15mm` for the models made before 2026-12-04).
 //!
 //! Two contact settings per runtime: the card's threshold, and a forced 4096 contact voxels
 //! (threshold 0, the cap decides), the worst case of the default config.
 use psgrasp_fusion::NormalGrid;
-use psgrasp_geometry::{GripperModel, Workspace};
+use psgrasp_geometry::Workspace;
 use psgrasp_inference::learned::{
     decode, load_model_dir, sampling, ClassProbabilities, Decoder, FeaturePyramid, GraphRuntime,
     HeadOutputs,
@@ -29,7 +30,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{bench_threads, env_usize, fused_grid, mean_min, model_dir, ms};
+use common::{bench_gripper, bench_threads, env_usize, fused_grid, mean_min, model_dir, ms};
 
 /// Mean and minimum of each stage over `iters` runs after one warm-up.
 fn run_row(
@@ -84,7 +85,7 @@ fn main() {
          | U-Net GFLOP/s dense-eq. (% of peak) | MLP GFLOP/s (% of peak) |"
     );
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
-    let files = load_model_dir(&dir, &workspace, &GripperModel::default()).expect("model");
+    let files = load_model_dir(&dir, &workspace, &bench_gripper()).expect("model");
     let unet_gflop = 2e-9
         * psgrasp_inference::native::plan_unet(&files.unet_onnx, &card)
             .expect("plan")
@@ -111,7 +112,7 @@ fn main() {
                     ..LearnedConfig::default()
                 };
                 let mut backend =
-                    match LearnedBackend::new(cfg, &workspace, GripperModel::default()) {
+                    match LearnedBackend::new(cfg, &workspace, bench_gripper()) {
                         Ok(b) => b,
                         Err(e) => {
                             println!("| {} | {t} | {label} | error: {e} |", runtime.name());
@@ -192,7 +193,7 @@ fn approximate_band(dir: &Path, grid: &NormalGrid, iters: usize, threads: usize)
                 native_band_voxels: band,
                 ..LearnedConfig::default()
             };
-            LearnedBackend::new(cfg, &workspace, GripperModel::default()).expect("native backend")
+            LearnedBackend::new(cfg, &workspace, bench_gripper()).expect("native backend")
         };
         let mut exact = backend(0);
         let reference = exact.infer(&g.view(), 0).expect("inference");
@@ -416,7 +417,7 @@ fn time_ms(iters: usize, mut f: impl FnMut()) -> String {
 
 /// The sampling and decoding steps one by one (single thread), 4096 contact voxels.
 fn breakdown(dir: &Path, workspace: Workspace, grid: &NormalGrid, iters: usize) {
-    let files = load_model_dir(dir, &workspace, &GripperModel::default()).expect("model");
+    let files = load_model_dir(dir, &workspace, &bench_gripper()).expect("model");
     let mut model = LearnedModel::new(&files, RuntimeKind::Tract, None, 1).expect("tract");
     let unet = model.run_unet(&grid.normals).expect("unet");
     let n = workspace.voxel_count();

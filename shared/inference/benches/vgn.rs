@@ -4,14 +4,15 @@
 //! Run: `cargo bench --workspace --features ort --bench vgn [-- MODEL_DIR]` (the ort rows need
 //! `ORT_DYLIB_PATH`). The model directory is the argument, else `$PSGRASP_VGN_MODEL_DIR`, else
 //! `models/vgn`. `PSGRASP_BENCH_ITERS` sets the timed runs per row (default 5),
-//! `PSGRASP_BENCH_THREADS` a comma-separated list of thread counts (default `1,2`).
-use psgrasp_geometry::GripperModel;
+//! `PSGRASP_BENCH_THREADS` a comma-separated list of thread counts (default `1,2`),
+//! `PSGRASP_BENCH_GRIPPER` the hand the model was trained for (default `franka`; `franka-15mm`
+//! for `models/vgn` until it is retrained for the real hand).
 use psgrasp_inference::vgn::{VgnBackend, VgnCard, VgnConfig, VgnTimings};
 use psgrasp_inference::{InferenceBackend, RuntimeKind};
 use std::time::Duration;
 
 mod common;
-use common::{bench_threads, env_usize, fused_grid, mean_min, model_dir, ms};
+use common::{bench_gripper, bench_threads, env_usize, fused_grid, mean_min, model_dir, ms};
 
 fn main() {
     let dir = model_dir("PSGRASP_VGN_MODEL_DIR", "vgn");
@@ -51,7 +52,7 @@ fn main() {
                 threads: t,
                 ..VgnConfig::default()
             };
-            let mut backend = match VgnBackend::new(cfg, &workspace, GripperModel::default()) {
+            let mut backend = match VgnBackend::new(cfg, &workspace, bench_gripper()) {
                 Ok(b) => b,
                 Err(e) => {
                     println!("| {} | {t} | error: {e} |", runtime.name());

@@ -1,6 +1,6 @@
 //! Helpers shared by the model benches (`learned.rs`, `vgn.rs`).
 use psgrasp_fusion::NormalGrid;
-use psgrasp_geometry::{BinModel, Workspace};
+use psgrasp_geometry::{BinModel, GripperModel, Workspace};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -26,6 +26,16 @@ pub fn bench_threads() -> Vec<usize> {
         .split(',')
         .filter_map(|t| t.trim().parse().ok())
         .collect()
+}
+
+/// The hand the model is loaded for: `$PSGRASP_BENCH_GRIPPER` (a name of `config/grippers`, e.g.
+/// `franka-15mm` for a model trained with it), else the default hand.
+pub fn bench_gripper() -> GripperModel {
+    match std::env::var("PSGRASP_BENCH_GRIPPER") {
+        Ok(name) => psgrasp_geometry::grippers::named(&name)
+            .unwrap_or_else(|e| panic!("PSGRASP_BENCH_GRIPPER: {e}")),
+        Err(_) => GripperModel::default(),
+    }
 }
 
 /// Milliseconds.
