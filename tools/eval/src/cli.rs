@@ -581,10 +581,23 @@ mod tests {
         let mut old_hand = franka.clone();
         old_hand.scenes.cell.gripper = psgrasp_geometry::grippers::named("franka-15mm").unwrap();
         assert!(shipped.build(&old_hand).is_err());
-        // The VGN-style baseline shipped in `models/vgn` was trained for the 15 mm fingertip.
-        let old = crate::DetectorSpec::for_model_dir("vgn", dir.join("../models/vgn"));
+        // A model made for the 15 mm fingertip: the shipped graphs with a card recording that
+        // hand's approach depth (the cards of the models trained before 2026-12-04).
+        let old_dir = tempfile::tempdir().unwrap();
+        for file in ["unet.onnx", "mlp.onnx"] {
+            std::fs::copy(
+                dir.join("../models/default").join(file),
+                old_dir.path().join(file),
+            )
+            .unwrap();
+        }
+        let card = std::fs::read_to_string(dir.join("../models/default/card.json")).unwrap();
+        let mut card: serde_json::Value = serde_json::from_str(&card).unwrap();
+        card["gripper"]["approach_depth_m"] = old_hand.cell().gripper.tcp_to_palm_m().into();
+        std::fs::write(old_dir.path().join("card.json"), card.to_string()).unwrap();
+        let old = crate::DetectorSpec::for_model_dir("old", old_dir.path().to_path_buf());
         if let Err(error) = old.build(&old_hand) {
-            panic!("the 15 mm VGN model under franka-15mm: {error:#}");
+            panic!("a 15 mm model under franka-15mm: {error:#}");
         }
         let refused = old
             .build(&franka)
