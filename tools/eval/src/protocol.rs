@@ -30,7 +30,8 @@ use psgrasp_inference::InferenceBackend;
 use psgrasp_perception::{CellConfig, DetectionTimings, Perception, Proposer};
 use psgrasp_selection::RejectionCounts;
 use psgrasp_sim::{
-    add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Scene,
+    add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Scene, WallZone,
+    WallZones,
 };
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -281,6 +282,10 @@ pub struct SceneSummary {
     /// The objects left in the bin at the end (failure analysis).
     #[serde(default)]
     pub remaining_objects: Vec<RemainingObject>,
+    /// Where the scene's objects lay relative to the side walls when the round began (absent
+    /// in records written before 2026-12-04).
+    #[serde(default)]
+    pub start_wall_zones: Option<WallZones>,
 }
 
 /// An object left in the bin when a scene ended.
@@ -297,6 +302,10 @@ pub struct RemainingObject {
     /// Gap between that box and the nearest side wall, metres (negative: it overlaps a wall's
     /// plane, e.g. leaning on it).
     pub wall_gap_m: f32,
+    /// Where it lay when the round began ([`RemainingObject::match_start_zones`]; absent in
+    /// records written before 2026-12-04).
+    #[serde(default)]
+    pub start_zone: Option<WallZone>,
 }
 
 impl RemainingObject {
@@ -327,9 +336,37 @@ impl RemainingObject {
                         0.5 * (lo.z + hi.z) - c.z,
                     ],
                     wall_gap_m: gap,
+                    start_zone: None,
                 })
             })
             .collect()
+    }
+
+    /// Sets each object's `start_zone` from the round's first scene: the unmatched object of the
+    /// same name whose start lay nearest (objects keep their names; a name can repeat).
+    pub fn match_start_zones(left: &mut [Self], first: &Scene) {
+        let mut start: Vec<Option<(Self, WallZone)>> = Self::of_scene(first)
+            .into_iter()
+            .enumerate()
+            .map(|(i, o)| first.object_wall_zone(i).map(|z| (o, z)))
+            .collect();
+        for o in left.iter_mut() {
+            let distance = |s: &Self| {
+                let d: f32 = (0..3)
+                    .map(|k| (s.center_m[k] - o.center_m[k]).powi(2))
+                    .sum();
+                d.sqrt()
+            };
+            let nearest = start
+                .iter()
+                .enumerate()
+                .filter_map(|(i, s)| s.as_ref().filter(|(s, _)| s.name == o.name).map(|s| (i, s)))
+                .min_by(|a, b| distance(&a.1 .0).total_cmp(&distance(&b.1 .0)))
+                .map(|(i, _)| i);
+            if let Some(i) = nearest {
+                o.start_zone = start[i].take().map(|(_, z)| z);
+            }
+        }
     }
 }
 
@@ -423,6 +460,8 @@ pub fn clear_scene(
     let gripper = gen.cell.gripper;
     let camera = default_camera(first.bin(), gen.intrinsics);
     let objects = first.object_count();
+    let start_wall_zones = first.wall_zones();
+    let first_scene = first.clone();
     let mut scene = first;
 
     let oracle = matches!(detector, Detector::Oracle);
@@ -563,7 +602,12 @@ pub fn clear_scene(
         configurations,
         scene_ms: ms(started),
         final_rejections,
-        remaining_objects: RemainingObject::of_scene(&scene),
+        remaining_objects: {
+            let mut left = RemainingObject::of_scene(&scene);
+            RemainingObject::match_start_zones(&mut left, &first_scene);
+            left
+        },
+        start_wall_zones: Some(start_wall_zones),
     };
     Ok(SceneRun { attempts, summary })
 }

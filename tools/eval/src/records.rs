@@ -360,6 +360,7 @@ mod tests {
             scene_ms: 100.0,
             final_rejections: Some(Default::default()),
             remaining_objects: Vec::new(),
+            start_wall_zones: None,
         }
     }
 

@@ -11,6 +11,7 @@ use crate::plot::{BarChart, Panel};
 use crate::protocol::{AttemptRecord, TouchedThing};
 use crate::records::{RecordLine, SceneKey};
 use psgrasp_datagen::Difficulty;
+use psgrasp_sim::WallZone;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -71,6 +72,13 @@ pub struct CellMetrics {
     /// Of the objects left, those within [`NEAR_WALL_M`] of a side wall.
     #[serde(default)]
     pub left_near_wall: usize,
+    /// Objects at the start of the rounds, by where they lay ([`WallZone::ALL`] order: interior,
+    /// by one wall, in a corner); only rounds whose records carry the start.
+    #[serde(default)]
+    pub started_by_zone: [usize; 3],
+    /// Of those, the objects left when the rounds ended, by where they started.
+    #[serde(default)]
+    pub left_by_start_zone: [usize; 3],
 }
 
 /// A pick whose TCP lies farther than this outside the object it aimed at missed it, metres.
@@ -93,6 +101,11 @@ pub fn failure_cause(a: &AttemptRecord) -> &'static str {
         Some(_) => "reached_on_target",
         None => "reached",
     }
+}
+
+/// The index of `zone` in [`WallZone::ALL`].
+fn zone_index(zone: WallZone) -> Option<usize> {
+    WallZone::ALL.iter().position(|z| *z == zone)
 }
 
 /// An object left this close to a side wall counts as "by a wall" in the report (the same
@@ -212,6 +225,8 @@ pub fn summarize(
                 failure_causes: BTreeMap::new(),
                 left_by_kind: BTreeMap::new(),
                 left_near_wall: 0,
+                started_by_zone: [0; 3],
+                left_by_start_zone: [0; 3],
             };
             let (mut frames, mut det_ms, mut configs, mut exec_ms) = (0u64, 0.0, 0usize, 0.0);
             for line in lines {
@@ -229,6 +244,19 @@ pub fn summarize(
                         for o in &s.remaining_objects {
                             *c.left_by_kind.entry(o.kind.clone()).or_default() += 1;
                             c.left_near_wall += usize::from(o.wall_gap_m < NEAR_WALL_M);
+                        }
+                        if let Some(z) = s.start_wall_zones {
+                            let by_zone = [
+                                z.objects - z.near_wall,
+                                z.near_wall - z.in_corner,
+                                z.in_corner,
+                            ];
+                            (0..3).for_each(|k| c.started_by_zone[k] += by_zone[k]);
+                            for o in &s.remaining_objects {
+                                if let Some(k) = o.start_zone.and_then(zone_index) {
+                                    c.left_by_start_zone[k] += 1;
+                                }
+                            }
                         }
                         let e = sr.entry(key.seed).or_default();
                         e.0.push(f64::from(s.successes));
@@ -381,6 +409,40 @@ impl Summary {
                 fmt_map(&c.left_by_kind),
             );
         }
+        if self
+            .cells
+            .iter()
+            .any(|c| c.started_by_zone.iter().sum::<usize>() > 0)
+        {
+            let _ = writeln!(
+                s,
+                "\n## Objects by where they started\n\nObjects at the start of the rounds by their \
+                 place in the bin (bounding box within {:.0} mm of one side wall, of two, or \
+                 neither): started, left at the end, share cleared.\n\n| Detector | Level | \
+                 interior | by a wall | in a corner |\n|---|---|---|---|---|",
+                NEAR_WALL_M * 1e3
+            );
+            for c in &self.cells {
+                let zone = |k: usize| {
+                    let (n, left) = (c.started_by_zone[k], c.left_by_start_zone[k]);
+                    if n == 0 {
+                        "0".to_string()
+                    } else {
+                        let cleared = 100.0 * n.saturating_sub(left) as f64 / n as f64;
+                        format!("{n}, left {left} ({cleared:.0} % cleared)")
+                    }
+                };
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} | {} |",
+                    self.label(&c.detector),
+                    level_name(c.level),
+                    zone(0),
+                    zone(1),
+                    zone(2),
+                );
+            }
+        }
         s
     }
 
@@ -447,6 +509,7 @@ mod tests {
                 scene_ms: 1.0,
                 final_rejections: None,
                 remaining_objects: Vec::new(),
+                start_wall_zones: None,
             },
         }
     }
@@ -495,6 +558,7 @@ mod tests {
             extent_m: [0.05; 3],
             center_m: [0.0; 3],
             wall_gap_m,
+            start_zone: None,
         };
         let mut a = scene(0, 0, 4, 2, 1);
         let mut b = scene(0, 1, 3, 1, 1);
@@ -520,6 +584,58 @@ mod tests {
         let md = s.markdown(&[0]);
         assert!(
             md.contains("| A | Easy | 5 | 3 | box 2, sphere 3 |"),
+            "{md}"
+        );
+        // Records without the round's start (before 2026-12-04) leave the start table out.
+        assert!(!md.contains("where they started"), "{md}");
+    }
+
+    #[test]
+    fn objects_are_counted_by_where_they_started() {
+        use psgrasp_sim::WallZones;
+        let left = |zone: WallZone| RemainingObject {
+            name: "proc-box".into(),
+            kind: "box".into(),
+            extent_m: [0.05; 3],
+            center_m: [0.0; 3],
+            wall_gap_m: 0.0,
+            start_zone: Some(zone),
+        };
+        // Scene a: 10 objects, 4 by a wall of which 1 in a corner; left: 1 interior, 2 by a
+        // wall, the corner one. Scene b: 5 objects, all interior, 1 left.
+        let mut a = scene(0, 0, 10, 6, 6);
+        let mut b = scene(0, 1, 5, 4, 4);
+        for (line, start, objects) in [
+            (
+                &mut a,
+                (10, 4, 1),
+                vec![
+                    left(WallZone::Interior),
+                    left(WallZone::Wall),
+                    left(WallZone::Wall),
+                    left(WallZone::Corner),
+                ],
+            ),
+            (&mut b, (5, 0, 0), vec![left(WallZone::Interior)]),
+        ] {
+            if let RecordLine::Scene { summary, .. } = line {
+                summary.remaining = objects.len();
+                summary.remaining_objects = objects;
+                summary.start_wall_zones = Some(WallZones {
+                    objects: start.0,
+                    near_wall: start.1,
+                    in_corner: start.2,
+                });
+            }
+        }
+        let detectors = [("a".to_string(), "A".to_string())];
+        let s = summarize(&[a, b], &detectors, &[Difficulty::Easy], &[0], 2);
+        let c = &s.cells[0];
+        assert_eq!(c.started_by_zone, [11, 3, 1]);
+        assert_eq!(c.left_by_start_zone, [2, 2, 1]);
+        let md = s.markdown(&[0]);
+        assert!(
+            md.contains("| A | Easy | 11, left 2 (82 % cleared) | 3, left 2 (33 % cleared) | 1, left 1 (0 % cleared) |"),
             "{md}"
         );
     }

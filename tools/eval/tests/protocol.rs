@@ -178,7 +178,12 @@ fn objects_left_in_the_bin_are_described() {
     let s = &r.summary;
     assert!(s.remaining > 0, "{s:?}");
     assert_eq!(s.remaining_objects.len(), s.remaining);
+    // The round's start is recorded: every object by its place, every one left by where it
+    // started.
+    let start = s.start_wall_zones.expect("start zones");
+    assert_eq!(start.objects, s.objects);
     for o in &s.remaining_objects {
+        assert!(o.start_zone.is_some(), "{o:?}");
         assert!(
             ["box", "sphere", "cylinder"].contains(&o.kind.as_str()),
             "{o:?}"
@@ -250,4 +255,33 @@ fn the_oracle_physics_check_is_off_by_default_and_its_width_is_checked() {
     assert!(err.contains("oracle.physics_check_max_width_m"), "{err}");
     // Unknown keys in the table are refused, naming them.
     assert!(toml::from_str::<psgrasp_eval::ProtocolConfig>("[oracle]\nwidth = 1\n").is_err());
+}
+
+#[test]
+fn objects_left_are_traced_to_where_they_started() {
+    use psgrasp_eval::RemainingObject;
+    use psgrasp_sim::{WallZone, WallZones};
+    use psgrasp_test_support::scenes::boxes_on_floor;
+    // Three 40 mm cubes of one name in the 600 × 400 mm bin: in the middle, 5 mm from the +x
+    // wall, and 5 mm from the +x and +y walls.
+    let h = [0.02; 3];
+    let first = boxes_on_floor(&[(h, [0.0, 0.0]), (h, [0.275, 0.0]), (h, [0.275, 0.175])]);
+    assert_eq!(
+        first.wall_zones(),
+        WallZones {
+            objects: 3,
+            near_wall: 2,
+            in_corner: 1
+        }
+    );
+    let zones: Vec<_> = (0..3).map(|i| first.object_wall_zone(i).unwrap()).collect();
+    assert_eq!(zones, WallZone::ALL);
+    // The wall box was picked; the middle one was pushed 30 mm towards the corner one, which
+    // stayed: each keeps the zone it started in, whatever name it shares.
+    let end = boxes_on_floor(&[(h, [0.03, 0.02]), (h, [0.275, 0.175])]);
+    let mut left = RemainingObject::of_scene(&end);
+    assert_eq!(left[0].name, left[1].name);
+    RemainingObject::match_start_zones(&mut left, &first);
+    let started: Vec<_> = left.iter().map(|o| o.start_zone).collect();
+    assert_eq!(started, [Some(WallZone::Interior), Some(WallZone::Corner)]);
 }

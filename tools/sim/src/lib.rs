@@ -28,8 +28,8 @@ pub use noise::{add_dex_noise, NoiseConfig};
 pub use objects::{LibraryObject, ObjectKind, ObjectLibrary, ObjectSpec, Part, Primitive, Split};
 pub use physics::{drop_and_settle, spawn_xy, SettleConfig, SettleReport};
 pub use scene::{
-    HitTarget, RayHit, Rendering, Scene, SceneDescription, SceneObject, WallZones, NEAR_WALL_M,
-    SEGMENT_BIN, SEGMENT_OBJECT0,
+    HitTarget, RayHit, Rendering, Scene, SceneDescription, SceneObject, WallZone, WallZones,
+    NEAR_WALL_M, SEGMENT_BIN, SEGMENT_OBJECT0,
 };
 
 use nalgebra::Point3;

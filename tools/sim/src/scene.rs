@@ -82,6 +82,34 @@ pub struct WallZones {
     pub in_corner: usize,
 }
 
+/// Where one object lies relative to the side walls ([`Scene::object_wall_zone`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WallZone {
+    /// Farther than [`NEAR_WALL_M`] from every side wall.
+    Interior,
+    /// Within [`NEAR_WALL_M`] of one side wall, not in a corner.
+    Wall,
+    /// Within [`NEAR_WALL_M`] of two perpendicular side walls.
+    Corner,
+}
+
+impl WallZone {
+    /// Every zone, from the bin's middle outwards.
+    pub const ALL: [Self; 3] = [Self::Interior, Self::Wall, Self::Corner];
+
+    /// The zone of a bounding box `gap_x` and `gap_y` from the nearest x and y walls (m).
+    pub fn of_gaps(gap_x: f32, gap_y: f32) -> Self {
+        if gap_x.max(gap_y) < NEAR_WALL_M {
+            Self::Corner
+        } else if gap_x.min(gap_y) < NEAR_WALL_M {
+            Self::Wall
+        } else {
+            Self::Interior
+        }
+    }
+}
+
 impl std::ops::AddAssign for WallZones {
     fn add_assign(&mut self, o: Self) {
         self.objects += o.objects;
@@ -273,21 +301,25 @@ impl Scene {
     /// Where the objects lie relative to the bin's side walls (their world-frame bounding
     /// boxes against the inner footprint).
     pub fn wall_zones(&self) -> WallZones {
+        let mut zones = WallZones::default();
+        for zone in (0..self.object_count()).filter_map(|i| self.object_wall_zone(i)) {
+            zones.objects += 1;
+            zones.near_wall += usize::from(zone != WallZone::Interior);
+            zones.in_corner += usize::from(zone == WallZone::Corner);
+        }
+        zones
+    }
+
+    /// Where object `index` lies relative to the side walls (its world-frame bounding box
+    /// against the inner footprint); `None` for an unknown index.
+    pub fn object_wall_zone(&self, index: usize) -> Option<WallZone> {
         let bin = self.bin();
         let c = bin.floor_center;
         let [lx, ly, _] = bin.inner_size_m;
-        let mut zones = WallZones::default();
-        for i in 0..self.object_count() {
-            let Some((lo, hi)) = self.object_aabb(i) else {
-                continue;
-            };
-            let gap_x = (lo.x - (c.x - 0.5 * lx)).min((c.x + 0.5 * lx) - hi.x);
-            let gap_y = (lo.y - (c.y - 0.5 * ly)).min((c.y + 0.5 * ly) - hi.y);
-            zones.objects += 1;
-            zones.near_wall += usize::from(gap_x.min(gap_y) < NEAR_WALL_M);
-            zones.in_corner += usize::from(gap_x.max(gap_y) < NEAR_WALL_M);
-        }
-        zones
+        let (lo, hi) = self.object_aabb(index)?;
+        let gap_x = (lo.x - (c.x - 0.5 * lx)).min((c.x + 0.5 * lx) - hi.x);
+        let gap_y = (lo.y - (c.y - 0.5 * ly)).min((c.y + 0.5 * ly) - hi.y);
+        Some(WallZone::of_gaps(gap_x, gap_y))
     }
 
     /// Signed distance from `p` to the surface of object `index` (negative inside); `None` for
