@@ -111,19 +111,18 @@ fn main() {
                     contact_probability: threshold,
                     ..LearnedConfig::default()
                 };
-                let mut backend =
-                    match LearnedBackend::new(cfg, &workspace, bench_gripper()) {
-                        Ok(b) => b,
-                        Err(e) => {
-                            println!("| {} | {t} | {label} | error: {e} |", runtime.name());
-                            let mut src = std::error::Error::source(&e);
-                            while let Some(s) = src {
-                                println!("  caused by: {s}");
-                                src = s.source();
-                            }
-                            continue;
+                let mut backend = match LearnedBackend::new(cfg, &workspace, bench_gripper()) {
+                    Ok(b) => b,
+                    Err(e) => {
+                        println!("| {} | {t} | {label} | error: {e} |", runtime.name());
+                        let mut src = std::error::Error::source(&e);
+                        while let Some(s) = src {
+                            println!("  caused by: {s}");
+                            src = s.source();
                         }
-                    };
+                        continue;
+                    }
+                };
                 let (first, runs) = run_row(&mut backend, &grid, iters);
                 let stat = |f: fn(&StageTimings) -> Duration| {
                     let v: Vec<f64> = runs.iter().map(|r| ms(f(r))).collect();
