@@ -80,21 +80,24 @@ class VgnNet(nn.Module):
         return {"quality_logit": y[:, 0:1], "baseline": y[:, 1:4], "approach": y[:, 4:7], "width_vox": y[:, 7:8]}
 
 
+def _unit_baseline_and_orthogonal_approach(baseline_raw: torch.Tensor, approach_raw: torch.Tensor,
+                                           eps: float = 1e-8) -> tuple[torch.Tensor, torch.Tensor]:
+    """Unit baseline and the raw approach's part orthogonal to it, not normalised (channel dim 1)."""
+    b = baseline_raw / baseline_raw.norm(dim=1, keepdim=True).clamp_min(eps)
+    return b, approach_raw - (approach_raw * b).sum(1, keepdim=True) * b
+
+
 def orientation(baseline_raw: torch.Tensor, approach_raw: torch.Tensor, eps: float = 1e-8):
     """Unit baseline and the approach made orthogonal to it and unit (channel dim 1)."""
-    b = baseline_raw / baseline_raw.norm(dim=1, keepdim=True).clamp_min(eps)
-    a = approach_raw - (approach_raw * b).sum(1, keepdim=True) * b
-    a = a / a.norm(dim=1, keepdim=True).clamp_min(eps)
-    return b, a
+    b, a = _unit_baseline_and_orthogonal_approach(baseline_raw, approach_raw, eps)
+    return b, a / a.norm(dim=1, keepdim=True).clamp_min(eps)
 
 
-def approach_orthogonal_share(out: dict[str, torch.Tensor]) -> torch.Tensor:
+def approach_orthogonal_share(out: dict[str, torch.Tensor], eps: float = 1e-8) -> torch.Tensor:
     """[B,X,Y,Z]: the share of the raw approach's length orthogonal to the baseline, i.e. how well
     the unit approach is defined (near 0 where the raw approach is nearly parallel to it)."""
-    b = out["baseline"] / out["baseline"].norm(dim=1, keepdim=True).clamp_min(1e-8)
-    a = out["approach"]
-    orthogonal = a - (a * b).sum(1, keepdim=True) * b
-    return orthogonal.norm(dim=1) / a.norm(dim=1).clamp_min(1e-8)
+    _, orthogonal = _unit_baseline_and_orthogonal_approach(out["baseline"], out["approach"], eps)
+    return orthogonal.norm(dim=1) / out["approach"].norm(dim=1).clamp_min(eps)
 
 
 class VgnExport(nn.Module):
@@ -105,10 +108,14 @@ class VgnExport(nn.Module):
         self.net = net
         self.voxel_size_m = float(voxel_size_m)
 
-    def forward(self, normal_grid: torch.Tensor):
-        out = self.net(normal_grid)
+    def heads(self, out: dict[str, torch.Tensor]):
+        """The exported outputs (quality, unit baseline, unit approach, width in metres) from the
+        net's raw heads."""
         b, a = orientation(out["baseline"], out["approach"])
         return torch.sigmoid(out["quality_logit"]), b, a, out["width_vox"] * self.voxel_size_m
+
+    def forward(self, normal_grid: torch.Tensor):
+        return self.heads(self.net(normal_grid))
 
 
 def vgn_targets(scene: Scene, min_quality: float = MIN_LABEL_QUALITY, dilate: int = 0) -> dict[str, torch.Tensor]:
@@ -316,9 +323,10 @@ def export_vgn(net: VgnNet, cfg: Config, info: DatasetInfo, out_dir: Path, step:
         module = VgnExport(net, info.voxel_size_m).eval()
         with torch.no_grad():
             _export_onnx(module, (normal_grid,), path, ["normal_grid"], list(VGN_OUTPUTS), None)
-            ours = module(normal_grid)
+            raw = net(normal_grid)
+            ours = module.heads(raw)
             theirs = _ort_session(path).run(None, {"normal_grid": normal_grid.numpy()})
-            share = approach_orthogonal_share(net(normal_grid)).numpy()
+            share = approach_orthogonal_share(raw).numpy()
         diffs = []
         for name, o, t in zip(VGN_OUTPUTS, ours, theirs):
             o = o.numpy()

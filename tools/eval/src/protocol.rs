@@ -311,22 +311,22 @@ pub struct RemainingObject {
 impl RemainingObject {
     /// Every object of `scene`.
     pub fn of_scene(scene: &Scene) -> Vec<Self> {
-        let bin = scene.bin();
-        let c = bin.floor_center;
-        let [lx, ly, _] = bin.inner_size_m;
+        Self::with_start_zones(scene)
+            .into_iter()
+            .map(|(o, _)| o)
+            .collect()
+    }
+
+    /// Every object of `scene` with its wall zone there (the round's start, for
+    /// [`RemainingObject::match_start_zones`]).
+    pub fn with_start_zones(scene: &Scene) -> Vec<(Self, WallZone)> {
+        let c = scene.bin().floor_center;
         (0..scene.object_count())
             .filter_map(|i| {
                 let (lo, hi) = scene.object_aabb(i)?;
+                let [gap_x, gap_y] = scene.object_wall_gaps(i)?;
                 let o = &scene.objects()[i];
-                let gap = [
-                    lo.x - (c.x - 0.5 * lx),
-                    (c.x + 0.5 * lx) - hi.x,
-                    lo.y - (c.y - 0.5 * ly),
-                    (c.y + 0.5 * ly) - hi.y,
-                ]
-                .into_iter()
-                .fold(f32::INFINITY, f32::min);
-                Some(Self {
+                let object = Self {
                     name: o.spec.name.clone(),
                     kind: format!("{:?}", o.spec.kind).to_lowercase(),
                     extent_m: (hi - lo).into(),
@@ -335,21 +335,19 @@ impl RemainingObject {
                         0.5 * (lo.y + hi.y) - c.y,
                         0.5 * (lo.z + hi.z) - c.z,
                     ],
-                    wall_gap_m: gap,
+                    wall_gap_m: gap_x.min(gap_y),
                     start_zone: None,
-                })
+                };
+                Some((object, WallZone::of_gaps(gap_x, gap_y)))
             })
             .collect()
     }
 
-    /// Sets each object's `start_zone` from the round's first scene: the unmatched object of the
-    /// same name whose start lay nearest (objects keep their names; a name can repeat).
-    pub fn match_start_zones(left: &mut [Self], first: &Scene) {
-        let mut start: Vec<Option<(Self, WallZone)>> = Self::of_scene(first)
-            .into_iter()
-            .enumerate()
-            .map(|(i, o)| first.object_wall_zone(i).map(|z| (o, z)))
-            .collect();
+    /// Sets each object's `start_zone` from the round's start ([`Self::with_start_zones`] of its
+    /// first scene): the unmatched object of the same name whose start lay nearest (objects keep
+    /// their names; a name can repeat).
+    pub fn match_start_zones(left: &mut [Self], start: &[(Self, WallZone)]) {
+        let mut start: Vec<Option<&(Self, WallZone)>> = start.iter().map(Some).collect();
         for o in left.iter_mut() {
             let distance = |s: &Self| {
                 let d: f32 = (0..3)
@@ -360,11 +358,11 @@ impl RemainingObject {
             let nearest = start
                 .iter()
                 .enumerate()
-                .filter_map(|(i, s)| s.as_ref().filter(|(s, _)| s.name == o.name).map(|s| (i, s)))
+                .filter_map(|(i, s)| s.filter(|(s, _)| s.name == o.name).map(|s| (i, s)))
                 .min_by(|a, b| distance(&a.1 .0).total_cmp(&distance(&b.1 .0)))
                 .map(|(i, _)| i);
             if let Some(i) = nearest {
-                o.start_zone = start[i].take().map(|(_, z)| z);
+                o.start_zone = start[i].take().map(|(_, z)| *z);
             }
         }
     }
@@ -460,8 +458,8 @@ pub fn clear_scene(
     let gripper = gen.cell.gripper;
     let camera = default_camera(first.bin(), gen.intrinsics);
     let objects = first.object_count();
-    let start_wall_zones = first.wall_zones();
-    let first_scene = first.clone();
+    let start = RemainingObject::with_start_zones(&first);
+    let start_wall_zones: WallZones = start.iter().map(|(_, zone)| *zone).collect();
     let mut scene = first;
 
     let oracle = matches!(detector, Detector::Oracle);
@@ -604,7 +602,7 @@ pub fn clear_scene(
         final_rejections,
         remaining_objects: {
             let mut left = RemainingObject::of_scene(&scene);
-            RemainingObject::match_start_zones(&mut left, &first_scene);
+            RemainingObject::match_start_zones(&mut left, &start);
             left
         },
         start_wall_zones: Some(start_wall_zones),

@@ -276,12 +276,20 @@ fn objects_left_are_traced_to_where_they_started() {
     );
     let zones: Vec<_> = (0..3).map(|i| first.object_wall_zone(i).unwrap()).collect();
     assert_eq!(zones, WallZone::ALL);
+    // The eval's start records agree with the scene's zones; the wall gap is the nearer one.
+    let start = RemainingObject::with_start_zones(&first);
+    assert_eq!(start.iter().map(|(_, z)| *z).collect::<Vec<_>>(), zones);
+    assert!(
+        (start[1].0.wall_gap_m - 0.005).abs() < 1e-4,
+        "{}",
+        start[1].0.wall_gap_m
+    );
     // The wall box was picked; the middle one was pushed 30 mm towards the corner one, which
     // stayed: each keeps the zone it started in, whatever name it shares.
     let end = boxes_on_floor(&[(h, [0.03, 0.02]), (h, [0.275, 0.175])]);
     let mut left = RemainingObject::of_scene(&end);
     assert_eq!(left[0].name, left[1].name);
-    RemainingObject::match_start_zones(&mut left, &first);
+    RemainingObject::match_start_zones(&mut left, &start);
     let started: Vec<_> = left.iter().map(|o| o.start_zone).collect();
     assert_eq!(started, [Some(WallZone::Interior), Some(WallZone::Corner)]);
 }

@@ -110,6 +110,18 @@ impl WallZone {
     }
 }
 
+impl FromIterator<WallZone> for WallZones {
+    fn from_iter<I: IntoIterator<Item = WallZone>>(zones: I) -> Self {
+        let mut counts = Self::default();
+        for zone in zones {
+            counts.objects += 1;
+            counts.near_wall += usize::from(zone != WallZone::Interior);
+            counts.in_corner += usize::from(zone == WallZone::Corner);
+        }
+        counts
+    }
+}
+
 impl std::ops::AddAssign for WallZones {
     fn add_assign(&mut self, o: Self) {
         self.objects += o.objects;
@@ -301,25 +313,29 @@ impl Scene {
     /// Where the objects lie relative to the bin's side walls (their world-frame bounding
     /// boxes against the inner footprint).
     pub fn wall_zones(&self) -> WallZones {
-        let mut zones = WallZones::default();
-        for zone in (0..self.object_count()).filter_map(|i| self.object_wall_zone(i)) {
-            zones.objects += 1;
-            zones.near_wall += usize::from(zone != WallZone::Interior);
-            zones.in_corner += usize::from(zone == WallZone::Corner);
-        }
-        zones
+        (0..self.object_count())
+            .filter_map(|i| self.object_wall_zone(i))
+            .collect()
     }
 
     /// Where object `index` lies relative to the side walls (its world-frame bounding box
     /// against the inner footprint); `None` for an unknown index.
     pub fn object_wall_zone(&self, index: usize) -> Option<WallZone> {
+        let [gap_x, gap_y] = self.object_wall_gaps(index)?;
+        Some(WallZone::of_gaps(gap_x, gap_y))
+    }
+
+    /// Gaps between object `index`'s world-frame bounding box and the nearest x wall and the
+    /// nearest y wall of the inner footprint, metres (negative: it overlaps the wall's plane);
+    /// `None` for an unknown index.
+    pub fn object_wall_gaps(&self, index: usize) -> Option<[f32; 2]> {
         let bin = self.bin();
         let c = bin.floor_center;
         let [lx, ly, _] = bin.inner_size_m;
         let (lo, hi) = self.object_aabb(index)?;
         let gap_x = (lo.x - (c.x - 0.5 * lx)).min((c.x + 0.5 * lx) - hi.x);
         let gap_y = (lo.y - (c.y - 0.5 * ly)).min((c.y + 0.5 * ly) - hi.y);
-        Some(WallZone::of_gaps(gap_x, gap_y))
+        Some([gap_x, gap_y])
     }
 
     /// Signed distance from `p` to the surface of object `index` (negative inside); `None` for
