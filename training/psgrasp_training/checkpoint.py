@@ -82,7 +82,12 @@ def save_checkpoint(run_dir: Path, step: int, cfg: Config, model: torch.nn.Modul
 
 def load_checkpoint(run_dir: Path, name: str = "latest.pt") -> dict[str, Any]:
     """Load a checkpoint of a run directory; config and dataset are returned as objects."""
-    path = Path(run_dir) / "checkpoints" / name
+    return load_checkpoint_file(Path(run_dir) / "checkpoints" / name)
+
+
+def load_checkpoint_file(path: Path) -> dict[str, Any]:
+    """Load one checkpoint file; config and dataset are returned as objects."""
+    path = Path(path)
     if not path.is_file():
         raise RunError(f"no checkpoint {path} (train or init the run first)")
     try:

@@ -176,6 +176,11 @@ class TrainConfig:
     fit_minutes: float = 0.0
     #: Steps timed before the first fit (the first few are skipped as warm-up).
     fit_probe_steps: int = 50
+    #: A fine-tune: a fresh run starts from the model weights of this checkpoint file (relative
+    #: paths are relative to the `training/` directory, e.g. `run-state/8app-crop32-v3/latest.pt`)
+    #: with its own optimiser and learning-rate schedule; its model config and variant must equal
+    #: the run's. The run's time (the card's CPU-hours) includes the checkpoint's. "" = random init.
+    init_weights: str = ""
 
 
 @dataclass

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from .checkpoint import DatasetInfo, RunError, load_checkpoint, save_checkpoint, write_json
+from .checkpoint import DatasetInfo, RunError, load_checkpoint, load_checkpoint_file, save_checkpoint, write_json
 from .config import Config
 from .data import Scene, SceneDataset, crop_origin, crop_scene, flip_scene
 from .decode import class_probabilities, sample_features, sample_grid, subvoxel_points
@@ -24,6 +24,9 @@ from .losses import (GraspIndex, contact_voxel_points, focal_loss, grasp_loss, g
                      predicted_voxel_points)
 from .model import CLASSES, GraspNet
 from .pickcheck import PickCheckConfig, PickStats, pick_check, scene_candidates
+
+#: The `training/` directory (relative train.init_weights paths start here).
+TRAINING_DIR = Path(__file__).resolve().parent.parent
 
 LOG_FIELDS = ["step", "loss", "label", "grasp", "baseline", "approach", "width", "quality", "collision", "points",
               "hit_rate", "lr", "seconds", "elapsed_s"]
@@ -294,6 +297,26 @@ def _open_log(run_dir: Path, resume_step: int, fields: list[str] = LOG_FIELDS):
     return f, w
 
 
+def init_weights_path(cfg: Config) -> Path:
+    """train.init_weights as a path (relative ones are relative to the `training/` directory)."""
+    path = Path(cfg.train.init_weights)
+    return path if path.is_absolute() else TRAINING_DIR / path
+
+
+def init_from_weights(net: torch.nn.Module, cfg: Config, log=print) -> float:
+    """Load train.init_weights' model weights into `net` (a fine-tune's start); returns the
+    checkpoint's training time in seconds, which the fine-tune's time continues."""
+    path = init_weights_path(cfg)
+    state = load_checkpoint_file(path)
+    old: Config = state["config"]
+    if old.to_dict()["model"] != cfg.to_dict()["model"] or old.variant != cfg.variant:
+        raise RunError(f"train.init_weights {path}: its model config or variant differs from this run's")
+    net.load_state_dict(state["model"])
+    elapsed = float(state.get("elapsed_s", 0.0))
+    log(f"initialised from {path} (step {state['step']}, {elapsed / 3600:.2f} h of training)")
+    return elapsed
+
+
 def fit(cfg: Config, data: Path, run_dir: Path, make_net, step_fn, evaluate_fn, export_fn, log_fields: list[str],
         describe: str, progress, resume: bool = False, export: bool = True, log=print,
         stop_at: int | None = None) -> dict:
@@ -323,6 +346,8 @@ def fit(cfg: Config, data: Path, run_dir: Path, make_net, step_fn, evaluate_fn, 
             log("warning: the dataset manifest changed since the checkpoint (resuming anyway)")
         net.load_state_dict(state["model"])
         start, elapsed0, opt_state = state["step"], state.get("elapsed_s", 0.0), state["optimizer"]
+    elif cfg.train.init_weights:
+        elapsed0 = init_from_weights(net, cfg, log)
     net.to(device).train()
     opt = torch.optim.Adam(net.parameters(), lr=cfg.train.lr)
     if opt_state is not None:

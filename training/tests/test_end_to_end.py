@@ -243,3 +243,31 @@ def test_a_run_trained_on_crops_validates_and_exports_the_whole_grid(box_dataset
     sess = ort.InferenceSession(str(tmp_path / "run" / "model" / "unet.onnx"))
     got = sess.run(None, {sess.get_inputs()[0].name: x.numpy()})[0]
     np.testing.assert_allclose(got, logits.numpy(), atol=1e-4)
+
+
+def test_a_fine_tune_starts_from_the_checkpoint_weights_and_refuses_another_model(box_dataset, tmp_path):
+    from conftest import tiny_config
+
+    from psgrasp_training.train import RunError
+
+    train(tiny_config(iterations=4, checkpoint_every=0), box_dataset, tmp_path / "parent", export=False, log=quiet)
+    parent = load_checkpoint(tmp_path / "parent")
+    # Zero fine-tune steps: the run's weights are the parent's; its time continues the parent's.
+    cfg = tiny_config(iterations=0, checkpoint_every=0)
+    cfg.train.init_weights = str(tmp_path / "parent" / "checkpoints" / "latest.pt")
+    train(cfg, box_dataset, tmp_path / "tune0", export=False, log=quiet)
+    tuned = load_checkpoint(tmp_path / "tune0")
+    for k in parent["model"]:
+        assert torch.equal(parent["model"][k], tuned["model"][k]), k
+    assert tuned["elapsed_s"] >= parent["elapsed_s"]
+    # With steps it moves away from them, with a fresh schedule (step 0 learning rate).
+    cfg.train.iterations = 2
+    train(cfg, box_dataset, tmp_path / "tune2", export=False, log=quiet)
+    moved = load_checkpoint(tmp_path / "tune2")["model"]
+    assert any(not torch.equal(parent["model"][k], moved[k]) for k in moved if moved[k].is_floating_point())
+    # Another model shape is refused, naming the setting.
+    other = tiny_config(iterations=1, checkpoint_every=0)
+    other.model.base_channels += 2
+    other.train.init_weights = cfg.train.init_weights
+    with pytest.raises(RunError, match="init_weights"):
+        train(other, box_dataset, tmp_path / "other", export=False, log=quiet)
