@@ -5,8 +5,8 @@
 //! hand of the evaluation, the model card check — takes its [`GripperModel`] from here, so one
 //! file defines it. A `[gripper]` table reads `model = "franka"` (the real Franka hand),
 //! (the default: [`DEFAULT_GRIPPER`]), `model = "robotiq-2f85"` or `model = "franka-15mm"` (the
-//! hand psgrasp modelled until 2026-12, which `models/ablation-wo-kappa` and `models/vgn` were
-//! trained with); any of the four size keys
+//! hand psgrasp modelled until 2026-12, which the models before then were trained with); any of
+//! the four size keys
 //! given beside it replaces that file's value (a custom hand is a table with all four).
 use crate::GripperModel;
 use serde::Deserialize;

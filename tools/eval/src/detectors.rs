@@ -366,12 +366,8 @@ mod tests {
             if let DetectorBackend::Backend(backend) = &mut spec.backend {
                 backend.resolve_paths(&root);
             }
-            // Only the wo-κ ablation is still the 15 mm hand's model (on tract, see the file).
-            let (hand, other) = if spec.name == "wo-kappa-1app" {
-                (&old_hand, &franka)
-            } else {
-                (&franka, &old_hand)
-            };
+            // Every shipped model is for the real Franka hand; the 15 mm hand refuses them.
+            let (hand, other) = (&franka, &old_hand);
             if let Err(error) = spec.build(hand) {
                 panic!("{}: {error}", spec.name);
             }
