@@ -18,7 +18,6 @@
 
 pub mod cli;
 pub mod detectors;
-pub mod execute;
 pub mod oracle;
 pub mod plot;
 pub mod protocol;
@@ -30,7 +29,7 @@ pub use cli::{run_eval, EvalArgs};
 pub use detectors::{
     default_detectors, BuiltDetector, DetectorBackend, DetectorList, DetectorSpec,
 };
-pub use execute::{
+pub use psgrasp_sim::execute::{
     execute_grasp, execute_grasp_traced, hand_collides, pregrasp_pose, verify_grasp_in_isolation,
     ApproachTouch, Execution, ExecutionConfig, ExecutionReport, GraspCommand, GraspOutcome,
     HandPart, Phase, TraceSample,
@@ -71,9 +70,6 @@ pub enum EvalError {
         /// What the valid range is.
         reason: &'static str,
     },
-    /// A grasp command cannot be executed (non-finite pose, bad opening, bad gripper).
-    #[error("invalid grasp command: {0}")]
-    InvalidGrasp(&'static str),
     /// Building or rendering a scene failed.
     #[error(transparent)]
     Sim(#[from] psgrasp_sim::SimError),

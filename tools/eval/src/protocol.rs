@@ -18,7 +18,7 @@
 //!
 //! A scene ends when the bin is empty, no grasp is found, after
 //! [`ProtocolConfig::max_consecutive_failures`] failed attempts in a row, or at the attempt cap.
-use crate::execute::{
+use psgrasp_sim::execute::{
     execute_grasp, pregrasp_collides, ApproachTouch, ExecutionConfig, GraspCommand, GraspOutcome,
     HandPart,
 };
@@ -104,7 +104,7 @@ impl ProtocolConfig {
             });
         }
         self.cell().validate()?;
-        self.execution.validate()
+        Ok(self.execution.validate()?)
     }
 }
 
@@ -506,7 +506,7 @@ pub fn clear_scene(
         let mut failed_physics = 0usize;
         let check_width = cfg.oracle.physics_check_max_width_m;
         let detection = perception.detect_with(depth, &camera, detect_seed, proposer, |pick| {
-            let command = GraspCommand::from(pick);
+            let command = grasp_command(pick);
             if oracle
                 && pick.width < check_width
                 && !label_holds_in_isolation(&scene, meshes, &gripper, &command, &cfg.execution)
@@ -541,7 +541,7 @@ pub fn clear_scene(
             &scene,
             meshes,
             &gripper,
-            &GraspCommand::from(pick),
+            &grasp_command(pick),
             &cfg.execution,
         )?;
         let execution_ms = ms(t);
@@ -608,6 +608,15 @@ pub fn clear_scene(
         start_wall_zones: Some(start_wall_zones),
     };
     Ok(SceneRun { attempts, summary })
+}
+
+/// What the simulated hand executes for a selected pick.
+fn grasp_command(pick: &psgrasp_selection::SelectedGrasp) -> GraspCommand {
+    GraspCommand {
+        workspace_from_gripper: pick.workspace_from_gripper,
+        opening_m: pick.opening_m,
+        pregrasp_distance_m: pick.pregrasp_distance_m,
+    }
 }
 
 fn ms(t: Instant) -> f64 {

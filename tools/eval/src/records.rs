@@ -305,7 +305,7 @@ fn encode(r: &RecordLine, path: &Path) -> Result<Vec<u8>, EvalError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::execute::GraspOutcome;
+    use psgrasp_sim::execute::GraspOutcome;
     use crate::protocol::SceneEnd;
     use psgrasp_inference::BackendConfig;
 

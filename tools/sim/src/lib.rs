@@ -17,6 +17,7 @@
 #![warn(missing_docs)]
 
 pub mod convert;
+pub mod execute;
 pub mod mesh;
 pub mod noise;
 pub mod objects;
@@ -75,6 +76,26 @@ pub enum SimError {
     /// No object is available for the requested selection.
     #[error("the object pool is empty for this selection")]
     EmptyObjectPool,
+    /// A named setting is out of its valid range (grasp execution).
+    #[error("invalid setting `{field}`: {reason}")]
+    InvalidSetting {
+        /// Name of the field.
+        field: &'static str,
+        /// What the valid range is.
+        reason: &'static str,
+    },
+    /// A grasp command cannot be executed (non-finite pose, bad opening, bad gripper).
+    #[error("invalid grasp command: {0}")]
+    InvalidGrasp(&'static str),
+}
+
+impl From<psgrasp_geometry::OutOfRange> for SimError {
+    fn from(e: psgrasp_geometry::OutOfRange) -> Self {
+        Self::InvalidSetting {
+            field: e.field,
+            reason: e.reason,
+        }
+    }
 }
 
 /// How to build one scene.

@@ -45,10 +45,10 @@ mod world;
 pub use config::ExecutionConfig;
 pub use sequence::{execute_grasp, execute_grasp_traced, verify_grasp_in_isolation};
 
-use crate::EvalError;
+use crate::SimError;
 use nalgebra::{Isometry3, Translation3, Vector3};
 use psgrasp_geometry::GripperModel;
-use psgrasp_sim::{Scene, SceneDescription};
+use crate::{Scene, SceneDescription};
 use serde::{Deserialize, Serialize};
 
 /// What to execute: the hand pose at the grasp and the opening to command before closing.
@@ -61,16 +61,6 @@ pub struct GraspCommand {
     /// How far before the grasp pose the approach starts, along −approach, metres (the pick's
     /// pre-grasp pose).
     pub pregrasp_distance_m: f32,
-}
-
-impl From<&psgrasp_selection::SelectedGrasp> for GraspCommand {
-    fn from(g: &psgrasp_selection::SelectedGrasp) -> Self {
-        Self {
-            workspace_from_gripper: g.workspace_from_gripper,
-            opening_m: g.opening_m,
-            pregrasp_distance_m: g.pregrasp_distance_m,
-        }
-    }
 }
 
 /// How an attempt ended.
@@ -213,22 +203,22 @@ pub fn hand_collides(
     })
 }
 
-fn validate_command(command: &GraspCommand, gripper: &GripperModel) -> Result<(), EvalError> {
+fn validate_command(command: &GraspCommand, gripper: &GripperModel) -> Result<(), SimError> {
     let p = &command.workspace_from_gripper;
     let finite = p.translation.vector.iter().all(|v| v.is_finite())
         && p.rotation.coords.iter().all(|v| v.is_finite());
     if !finite {
-        return Err(EvalError::InvalidGrasp("pose is not finite"));
+        return Err(SimError::InvalidGrasp("pose is not finite"));
     }
     if !(command.opening_m.is_finite() && command.opening_m > 0.0) {
-        return Err(EvalError::InvalidGrasp(
+        return Err(SimError::InvalidGrasp(
             "opening must be positive and finite",
         ));
     }
     if !(command.pregrasp_distance_m.is_finite()
         && (0.0..1.0).contains(&command.pregrasp_distance_m))
     {
-        return Err(EvalError::InvalidGrasp(
+        return Err(SimError::InvalidGrasp(
             "pre-grasp distance must lie in [0, 1) m",
         ));
     }
@@ -239,7 +229,7 @@ fn validate_command(command: &GraspCommand, gripper: &GripperModel) -> Result<()
             .chain(&gripper.palm_size_m)
             .any(|v| !(v.is_finite() && *v > 0.0))
     {
-        return Err(EvalError::InvalidGrasp("gripper sizes must be positive"));
+        return Err(SimError::InvalidGrasp("gripper sizes must be positive"));
     }
     Ok(())
 }
@@ -277,7 +267,7 @@ mod tests {
         };
         assert!(matches!(
             bad.validate(),
-            Err(EvalError::InvalidConfig {
+            Err(SimError::InvalidSetting {
                 field: "lifted_fraction",
                 ..
             })
@@ -292,7 +282,7 @@ mod tests {
         cmd.opening_m = f32::NAN;
         assert!(matches!(
             validate_command(&cmd, &g),
-            Err(EvalError::InvalidGrasp(_))
+            Err(SimError::InvalidGrasp(_))
         ));
         cmd.opening_m = 0.05;
         cmd.workspace_from_gripper.translation.x = f32::INFINITY;

@@ -1,7 +1,7 @@
 //! [`ExecutionConfig`]: the settings of one grasp execution, with defaults and range checks.
-use crate::EvalError;
+use crate::SimError;
 use psgrasp_geometry::check_setting;
-use psgrasp_sim::SettleConfig;
+use crate::SettleConfig;
 use serde::{Deserialize, Serialize};
 
 /// Settings of one grasp execution; every threshold has a default.
@@ -93,7 +93,7 @@ impl Default for ExecutionConfig {
 
 impl ExecutionConfig {
     /// Checks every field's range.
-    pub fn validate(&self) -> Result<(), EvalError> {
+    pub fn validate(&self) -> Result<(), SimError> {
         let pos = |v: f32| v.is_finite() && v > 0.0;
         let nonneg = |v: f32| v.is_finite() && v >= 0.0;
         check_setting(

@@ -4,7 +4,7 @@ use super::world::{hand_groups, USER_BIN, USER_HAND};
 use super::{ExecutionConfig, HandPart};
 use nalgebra::{Isometry3, Vector3};
 use psgrasp_geometry::GripperModel;
-use psgrasp_sim::convert::{pose_from_glam, pose_to_glam, vec_to_glam};
+use crate::convert::{pose_from_glam, pose_to_glam, vec_to_glam};
 use rapier3d::prelude::{
     ActiveCollisionTypes, ColliderBuilder, ColliderHandle, ImpulseJointHandle, PhysicsWorld,
     PrismaticJointBuilder, RigidBodyBuilder, RigidBodyHandle, SharedShape,

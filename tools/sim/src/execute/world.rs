@@ -1,12 +1,12 @@
 //! The rapier world of one attempt: integration parameters, the bin and the objects (shared with
-//! scene generation: [`psgrasp_sim::physics`]), settling after the attempt and the scene it leaves.
+//! scene generation: [`crate::physics`]), settling after the attempt and the scene it leaves.
 use super::ExecutionConfig;
-use crate::EvalError;
-use psgrasp_sim::physics::{
+use crate::SimError;
+use crate::physics::{
     body_at_rest, insert_bin, insert_object, physics_world, pose_in_bin, step_until_rest,
     ColliderTags,
 };
-use psgrasp_sim::{MeshLibrary, SceneDescription, SceneObject};
+use crate::{MeshLibrary, SceneDescription, SceneObject};
 use rapier3d::prelude::{
     Group, InteractionGroups, InteractionTestMode, PhysicsWorld, RigidBodyHandle,
 };
@@ -49,7 +49,7 @@ pub(super) fn insert_scene(
     desc: &SceneDescription,
     meshes: &MeshLibrary,
     cfg: &ExecutionConfig,
-) -> Result<Vec<RigidBodyHandle>, EvalError> {
+) -> Result<Vec<RigidBodyHandle>, SimError> {
     let bin_tags = ColliderTags {
         groups: world_groups(),
         user_data: USER_BIN,
@@ -69,7 +69,7 @@ fn insert_scene_object(
     index: usize,
     meshes: &MeshLibrary,
     cfg: &ExecutionConfig,
-) -> Result<RigidBodyHandle, EvalError> {
+) -> Result<RigidBodyHandle, SimError> {
     let shape = obj.spec.build_physics_shape(meshes)?;
     let tags = ColliderTags {
         groups: world_groups(),
@@ -92,8 +92,8 @@ pub(super) fn insert_lone_object(
     index: usize,
     meshes: &MeshLibrary,
     cfg: &ExecutionConfig,
-) -> Result<RigidBodyHandle, EvalError> {
-    let obj = desc.objects.get(index).ok_or(EvalError::InvalidConfig {
+) -> Result<RigidBodyHandle, SimError> {
+    let obj = desc.objects.get(index).ok_or(SimError::InvalidSetting {
         field: "object",
         reason: "the scene has no object of that index",
     })?;

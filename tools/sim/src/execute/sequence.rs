@@ -8,11 +8,11 @@ use super::{
     pregrasp_collides, pregrasp_pose, validate_command, ApproachTouch, Execution, ExecutionConfig,
     ExecutionReport, GraspCommand, GraspOutcome, Phase, TraceSample,
 };
-use crate::EvalError;
+use crate::SimError;
 use nalgebra::{Isometry3, Translation3, Vector3};
 use psgrasp_geometry::GripperModel;
-use psgrasp_sim::convert::{pose_from_glam, vec_from_glam, vec_to_glam};
-use psgrasp_sim::{MeshLibrary, Scene};
+use crate::convert::{pose_from_glam, vec_from_glam, vec_to_glam};
+use crate::{MeshLibrary, Scene};
 use rapier3d::prelude::{JointAxis, MotorModel, PhysicsWorld, RigidBodyHandle};
 
 /// Executes one grasp on `scene` (see the module docs). `meshes` must hold the meshes the scene's
@@ -23,7 +23,7 @@ pub fn execute_grasp(
     gripper: &GripperModel,
     command: &GraspCommand,
     cfg: &ExecutionConfig,
-) -> Result<Execution, EvalError> {
+) -> Result<Execution, SimError> {
     execute_grasp_traced(scene, meshes, gripper, command, cfg, None)
 }
 
@@ -41,7 +41,7 @@ pub fn verify_grasp_in_isolation(
     command: &GraspCommand,
     object: usize,
     cfg: &ExecutionConfig,
-) -> Result<GraspOutcome, EvalError> {
+) -> Result<GraspOutcome, SimError> {
     cfg.validate()?;
     validate_command(command, gripper)?;
     let opening = command.opening_m.min(gripper.max_opening_m);
@@ -105,7 +105,7 @@ pub fn execute_grasp_traced(
     command: &GraspCommand,
     cfg: &ExecutionConfig,
     mut trace: Option<&mut dyn FnMut(&TraceSample)>,
-) -> Result<Execution, EvalError> {
+) -> Result<Execution, SimError> {
     let mut record =
         |world: &PhysicsWorld, hand: &Hand, objects: &[RigidBodyHandle], phase, step| {
             if let Some(f) = trace.as_mut() {
