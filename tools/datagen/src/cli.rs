@@ -239,6 +239,8 @@ fn manifest_entry(index: u64, meta: &crate::dataset::SceneMeta) -> ManifestScene
         poses_checked: meta.label_stats.poses_checked,
         poses_free: meta.label_stats.poses_free,
         wall_zones: meta.wall_zones,
+        physics_checked: meta.label_stats.physics_checked,
+        physics_failed: meta.label_stats.physics_failed,
     }
 }
 
@@ -402,6 +404,14 @@ pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
         manifest.scenes.len(),
         describe_wall_zones(&zones)
     );
+    let checked: usize = manifest.scenes.iter().map(|s| s.physics_checked).sum();
+    if checked > 0 {
+        let failed: usize = manifest.scenes.iter().map(|s| s.physics_failed).sum();
+        println!(
+            "physics check of the labels: {failed} of {checked} grasps ({:.1} %) did not hold their object and were dropped",
+            100.0 * failed as f64 / checked as f64
+        );
+    }
     if let Some(e) = first_error {
         return Err(e);
     }

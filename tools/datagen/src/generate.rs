@@ -1,6 +1,7 @@
 //! Generating one scene record: objects → physics → rendering → noise → labels → targets.
 use crate::dataset::{SceneMeta, SceneRecord, FORMAT_VERSION};
 use crate::labels::{generate_labels, LabelConfig};
+use crate::physics_check::{check_labels_in_physics, LabelPhysicsCheck};
 use crate::targets::{label_grid, normal_grid};
 use crate::DatagenError;
 use psgrasp_geometry::CameraIntrinsics;
@@ -100,6 +101,10 @@ pub struct GenerationConfig {
     /// this share of the gripper's maximum opening (every object fits the hand in a horizontal
     /// direction whichever face it rests on); 0 = no limit.
     pub fit_opening_share: f32,
+    /// ACRONYM's physics check of the labels (off by default; stored only when on, so that
+    /// datasets made without it keep their manifests).
+    #[serde(skip_serializing_if = "LabelPhysicsCheck::is_off")]
+    pub physics_check: LabelPhysicsCheck,
     /// Refuses top-level keys that no table takes.
     #[serde(flatten, skip_serializing)]
     pub unknown_keys: NoUnknownKeys,
@@ -116,6 +121,7 @@ impl Default for GenerationConfig {
             scale_range: [0.8, 1.2],
             fit_opening_share: 0.9,
             object_counts: ObjectCounts::default(),
+            physics_check: LabelPhysicsCheck::default(),
             unknown_keys: NoUnknownKeys,
         }
     }
@@ -234,13 +240,21 @@ pub fn generate_record_with_recipe(
     } else {
         rendering.depth.clone()
     };
-    let label_set = generate_labels(
+    let mut label_set = generate_labels(
         &scene,
         &camera,
         &rendering,
         &config.cell.gripper,
         &config.labels,
         derive_seed(seed, 3),
+    );
+    label_set.labels = check_labels_in_physics(
+        &scene,
+        meshes,
+        &config.cell.gripper,
+        std::mem::take(&mut label_set.labels),
+        &config.physics_check,
+        &mut label_set.stats,
     );
     let grid = normal_grid(&depth, &camera, &config.cell.workspace, &config.cell.fusion)?;
     let labels_grid = label_grid(

@@ -189,6 +189,17 @@ pub struct LabelStats {
     pub grasps: usize,
     /// Stored grasps per object index.
     pub grasps_per_object: Vec<usize>,
+    /// Physical grasps run through ACRONYM's physics check (a label and its mirror are one;
+    /// [`crate::physics_check`]; 0 when the check is off).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub physics_checked: usize,
+    /// Of those, the ones that did not hold their object (their labels are not stored).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub physics_failed: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 impl LabelStats {

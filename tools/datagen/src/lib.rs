@@ -12,6 +12,7 @@ pub mod dataset;
 pub mod generate;
 pub mod inspect;
 pub mod labels;
+pub mod physics_check;
 pub mod targets;
 pub mod verify;
 
@@ -22,6 +23,7 @@ pub use generate::{
     ObjectCounts,
 };
 pub use labels::{generate_labels, GraspLabel, LabelConfig, LabelSet, LabelStats};
+pub use physics_check::{check_labels_in_physics, LabelPhysicsCheck};
 pub use targets::{label_grid, LABEL_CONTACT, LABEL_EMPTY, LABEL_GRIPPER};
 
 use std::path::PathBuf;

@@ -29,15 +29,15 @@ pub use cli::{run_eval, EvalArgs};
 pub use detectors::{
     default_detectors, BuiltDetector, DetectorBackend, DetectorList, DetectorSpec,
 };
-pub use psgrasp_sim::execute::{
-    execute_grasp, execute_grasp_traced, hand_collides, pregrasp_pose, verify_grasp_in_isolation,
-    ApproachTouch, Execution, ExecutionConfig, ExecutionReport, GraspCommand, GraspOutcome,
-    HandPart, Phase, TraceSample,
-};
 pub use oracle::OracleConfig;
 pub use protocol::{
     clear_scene, run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, PickTarget,
     ProtocolConfig, RemainingObject, SceneEnd, SceneRun, SceneSummary, TouchRecord, TouchedThing,
+};
+pub use psgrasp_sim::execute::{
+    execute_grasp, execute_grasp_traced, hand_collides, pregrasp_pose, verify_grasp_in_isolation,
+    ApproachTouch, Execution, ExecutionConfig, ExecutionReport, GraspCommand, GraspOutcome,
+    HandPart, Phase, TraceSample,
 };
 pub use testset::{TestSet, TestSetManifest, DEFAULT_TESTSET_DIR};
 

@@ -1,10 +1,10 @@
 //! The ground-truth oracle ([`crate::Detector::Oracle`]): the dataset labeler's grasps on the true
 //! scene, optionally checked in physics the way ACRONYM checks the paper's labels.
-use psgrasp_sim::execute::{verify_grasp_in_isolation, ExecutionConfig, GraspCommand};
 use crate::protocol::{PickTarget, ProtocolConfig};
 use nalgebra::Point3;
 use psgrasp_datagen::generate_labels;
 use psgrasp_geometry::{CameraModel, GraspConfiguration, GripperModel};
+use psgrasp_sim::execute::{verify_grasp_in_isolation, ExecutionConfig, GraspCommand};
 use psgrasp_sim::{MeshLibrary, Rendering, Scene};
 use serde::{Deserialize, Serialize};
 

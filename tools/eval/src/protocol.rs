@@ -18,10 +18,6 @@
 //!
 //! A scene ends when the bin is empty, no grasp is found, after
 //! [`ProtocolConfig::max_consecutive_failures`] failed attempts in a row, or at the attempt cap.
-use psgrasp_sim::execute::{
-    execute_grasp, pregrasp_collides, ApproachTouch, ExecutionConfig, GraspCommand, GraspOutcome,
-    HandPart,
-};
 use crate::oracle::{label_holds_in_isolation, oracle_configurations, OracleConfig};
 use crate::EvalError;
 use nalgebra::Point3;
@@ -29,6 +25,10 @@ use psgrasp_datagen::{derive_seed, Difficulty, GenerationConfig};
 use psgrasp_inference::InferenceBackend;
 use psgrasp_perception::{CellConfig, DetectionTimings, Perception, Proposer};
 use psgrasp_selection::RejectionCounts;
+use psgrasp_sim::execute::{
+    execute_grasp, pregrasp_collides, ApproachTouch, ExecutionConfig, GraspCommand, GraspOutcome,
+    HandPart,
+};
 use psgrasp_sim::{
     add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Scene, WallZone,
     WallZones,

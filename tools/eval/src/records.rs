@@ -305,9 +305,9 @@ fn encode(r: &RecordLine, path: &Path) -> Result<Vec<u8>, EvalError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use psgrasp_sim::execute::GraspOutcome;
     use crate::protocol::SceneEnd;
     use psgrasp_inference::BackendConfig;
+    use psgrasp_sim::execute::GraspOutcome;
 
     fn key(scene: u64) -> SceneKey {
         SceneKey {

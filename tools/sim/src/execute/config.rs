@@ -1,7 +1,7 @@
 //! [`ExecutionConfig`]: the settings of one grasp execution, with defaults and range checks.
+use crate::SettleConfig;
 use crate::SimError;
 use psgrasp_geometry::check_setting;
-use crate::SettleConfig;
 use serde::{Deserialize, Serialize};
 
 /// Settings of one grasp execution; every threshold has a default.

@@ -2,9 +2,9 @@
 //! impulse joints, moved pose by pose; what the hand touches and how far its fingers are apart.
 use super::world::{hand_groups, USER_BIN, USER_HAND};
 use super::{ExecutionConfig, HandPart};
+use crate::convert::{pose_from_glam, pose_to_glam, vec_to_glam};
 use nalgebra::{Isometry3, Vector3};
 use psgrasp_geometry::GripperModel;
-use crate::convert::{pose_from_glam, pose_to_glam, vec_to_glam};
 use rapier3d::prelude::{
     ActiveCollisionTypes, ColliderBuilder, ColliderHandle, ImpulseJointHandle, PhysicsWorld,
     PrismaticJointBuilder, RigidBodyBuilder, RigidBodyHandle, SharedShape,

@@ -46,9 +46,9 @@ pub use config::ExecutionConfig;
 pub use sequence::{execute_grasp, execute_grasp_traced, verify_grasp_in_isolation};
 
 use crate::SimError;
+use crate::{Scene, SceneDescription};
 use nalgebra::{Isometry3, Translation3, Vector3};
 use psgrasp_geometry::GripperModel;
-use crate::{Scene, SceneDescription};
 use serde::{Deserialize, Serialize};
 
 /// What to execute: the hand pose at the grasp and the opening to command before closing.

@@ -8,11 +8,11 @@ use super::{
     pregrasp_collides, pregrasp_pose, validate_command, ApproachTouch, Execution, ExecutionConfig,
     ExecutionReport, GraspCommand, GraspOutcome, Phase, TraceSample,
 };
+use crate::convert::{pose_from_glam, vec_from_glam, vec_to_glam};
 use crate::SimError;
+use crate::{MeshLibrary, Scene};
 use nalgebra::{Isometry3, Translation3, Vector3};
 use psgrasp_geometry::GripperModel;
-use crate::convert::{pose_from_glam, vec_from_glam, vec_to_glam};
-use crate::{MeshLibrary, Scene};
 use rapier3d::prelude::{JointAxis, MotorModel, PhysicsWorld, RigidBodyHandle};
 
 /// Executes one grasp on `scene` (see the module docs). `meshes` must hold the meshes the scene's

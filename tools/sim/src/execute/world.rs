@@ -1,11 +1,11 @@
 //! The rapier world of one attempt: integration parameters, the bin and the objects (shared with
 //! scene generation: [`crate::physics`]), settling after the attempt and the scene it leaves.
 use super::ExecutionConfig;
-use crate::SimError;
 use crate::physics::{
     body_at_rest, insert_bin, insert_object, physics_world, pose_in_bin, step_until_rest,
     ColliderTags,
 };
+use crate::SimError;
 use crate::{MeshLibrary, SceneDescription, SceneObject};
 use rapier3d::prelude::{
     Group, InteractionGroups, InteractionTestMode, PhysicsWorld, RigidBodyHandle,
