@@ -18,6 +18,7 @@
 
 pub mod cli;
 pub mod detectors;
+pub mod kappa;
 pub mod oracle;
 pub mod plot;
 pub mod protocol;

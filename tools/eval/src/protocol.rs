@@ -135,6 +135,10 @@ pub struct AttemptRecord {
     pub quality: f32,
     /// Collision score of its approach.
     pub collision_score: f32,
+    /// Concentration κ of its baseline distribution (0 where the detector has none: the
+    /// oracle, the analytic and VGN-style baselines; absent in records before 2026-12-04).
+    #[serde(default)]
+    pub kappa: Option<f32>,
     /// Index of its approach (0..18).
     pub approach_index: usize,
     /// Contact-to-contact width, metres.
@@ -554,6 +558,7 @@ pub fn clear_scene(
             configurations: configs.len(),
             quality: pick.quality,
             collision_score: pick.collision_score,
+            kappa: configs.get(pick.configuration_index).map(|c| c.kappa),
             approach_index: pick.approach_index,
             width_m: pick.width,
             opening_m: pick.opening_m,

@@ -325,6 +325,7 @@ mod tests {
             configurations: 10,
             quality: 0.9,
             collision_score: 1.0,
+            kappa: Some(30.0),
             approach_index: 8,
             width_m: 0.03,
             opening_m: 0.05,

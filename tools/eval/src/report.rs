@@ -7,6 +7,7 @@
 //! the standard error over scenes instead (ratio estimator: `√(n/(n−1)·Σ(s_i − R·a_i)²) / Σ a_i`).
 //! Detection time is fusion + inference + selection per frame; "grasps/s" are successful grasps
 //! per second of detection time.
+use crate::kappa::KappaBins;
 use crate::plot::{BarChart, Panel};
 use crate::protocol::{AttemptRecord, TouchedThing};
 use crate::records::{RecordLine, SceneKey};
@@ -79,6 +80,10 @@ pub struct CellMetrics {
     /// Of those, the objects left when the rounds ended, by where they started.
     #[serde(default)]
     pub left_by_start_zone: [usize; 3],
+    /// The executed grasps by κ quartile (detectors with a baseline distribution; records
+    /// that carry κ).
+    #[serde(default)]
+    pub kappa: Option<KappaBins>,
 }
 
 /// A pick whose TCP lies farther than this outside the object it aimed at missed it, metres.
@@ -227,7 +232,9 @@ pub fn summarize(
                 left_near_wall: 0,
                 started_by_zone: [0; 3],
                 left_by_start_zone: [0; 3],
+                kappa: None,
             };
+            let mut kappas: Vec<(f32, bool)> = Vec::new();
             let (mut frames, mut det_ms, mut configs, mut exec_ms) = (0u64, 0.0, 0usize, 0.0);
             for line in lines {
                 match line {
@@ -274,10 +281,14 @@ pub fn summarize(
                                 .or_default() += 1;
                         }
                         exec_ms += attempt.execution_ms;
+                        if let Some(k) = attempt.kappa {
+                            kappas.push((k, attempt.outcome.is_success()));
+                        }
                     }
                     _ => {}
                 }
             }
+            c.kappa = KappaBins::of(&kappas);
             c.seeds = cr.len();
             c.success_rate = estimate(&sr);
             c.clearing_rate = estimate(&cr);
@@ -441,6 +452,26 @@ impl Summary {
                     zone(1),
                     zone(2),
                 );
+            }
+        }
+        if self.cells.iter().any(|c| c.kappa.is_some()) {
+            let _ = writeln!(
+                s,
+                "\n## Concentration κ of the executed grasps\n\nMean κ of the successful / failed \
+                 attempts, then the attempts split at the quartiles of their κ: κ range, success \
+                 rate, attempts.\n\n| Detector | Level | mean κ success / failure | by κ quartile |\n\
+                 |---|---|---|---|"
+            );
+            for c in &self.cells {
+                if let Some(k) = &c.kappa {
+                    let _ = writeln!(
+                        s,
+                        "| {} | {} | {} |",
+                        self.label(&c.detector),
+                        level_name(c.level),
+                        k.describe()
+                    );
+                }
             }
         }
         s

@@ -149,3 +149,53 @@ fn a_detector_can_carry_its_own_quality_threshold() {
     let err = format!("{:#}", run_eval(&bad).unwrap_err());
     assert!(err.contains("bad") && err.contains("min_quality"), "{err}");
 }
+
+#[test]
+fn executed_grasps_carry_the_detectors_kappa_and_the_report_bins_it() {
+    // The shipped model on four easy scenes: every attempt records the κ of the configuration it
+    // executed (at or above the model's floor κ0 = 25, from its Power-Spherical head); the
+    // analytic detector has no baseline distribution (κ = 0) and gets no κ row.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let list = dir.path().join("detectors.toml");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default");
+    std::fs::write(
+        &list,
+        format!(
+            "[[detector]]\nname = \"analytic\"\nbackend = {{ kind = \"analytic\" }}\n\n\
+             [[detector]]\nname = \"learned\"\nbackend = {{ kind = \"learned\", model_dir = {:?}, threads = 1 }}\n",
+            model.display().to_string()
+        ),
+    )
+    .unwrap();
+    let mut a = args(&out, 4, 2);
+    a.detectors = vec!["analytic".into(), "learned".into()];
+    a.detectors_file = Some(list);
+    a.levels = vec![Difficulty::Easy];
+    run_eval(&a).unwrap();
+    let f = RecordsFile::open(&out).unwrap();
+    let kappas = |name: &str| -> Vec<Option<f32>> {
+        f.lines()
+            .iter()
+            .filter_map(|l| match l {
+                RecordLine::Attempt { key, attempt } if key.detector == name => Some(attempt.kappa),
+                _ => None,
+            })
+            .collect()
+    };
+    let (analytic, learned) = (kappas("analytic"), kappas("learned"));
+    assert!(!learned.is_empty() && !analytic.is_empty());
+    assert!(
+        learned.iter().all(|k| k.is_some_and(|k| k >= 25.0)),
+        "{learned:?}"
+    );
+    assert!(analytic.iter().all(|k| *k == Some(0.0)), "{analytic:?}");
+    let md = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    let section = md
+        .split("## Concentration κ of the executed grasps")
+        .nth(1)
+        .unwrap_or("");
+    assert!(learned.len() >= 4, "{learned:?}");
+    assert!(section.contains("| learned | Easy |"), "{md}");
+    assert!(!section.contains("| analytic |"), "{md}");
+}
