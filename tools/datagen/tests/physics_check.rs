@@ -34,20 +34,22 @@ fn labels_that_hold_stay_and_grasps_beside_the_object_are_dropped() {
     let mut beside = labels[0];
     beside.contact += Vector3::new(0.1, 0.0, 0.0);
     labels.push(beside);
-    let gripper = GripperModel::default();
-    let check = LabelPhysicsCheck {
+    let run = |check: &LabelPhysicsCheck| {
+        let mut stats = set.stats.clone();
+        let kept = check_labels_in_physics(
+            &scene,
+            &MeshLibrary::default(),
+            &GripperModel::default(),
+            labels.clone(),
+            check,
+            &mut stats,
+        );
+        (kept, stats)
+    };
+    let (kept, stats) = run(&LabelPhysicsCheck {
         max_width_m: 1.0,
         ..LabelPhysicsCheck::default()
-    };
-    let mut stats = set.stats.clone();
-    let kept = check_labels_in_physics(
-        &scene,
-        &MeshLibrary::default(),
-        &gripper,
-        labels.clone(),
-        &check,
-        &mut stats,
-    );
+    });
     // One check per physical grasp: 12 pairs and the moved one.
     assert_eq!(stats.physics_checked, 13);
     assert!(!kept.contains(&beside), "a grasp beside the cube was kept");
@@ -77,15 +79,7 @@ fn labels_that_hold_stay_and_grasps_beside_the_object_are_dropped() {
         },
         LabelPhysicsCheck::default(),
     ] {
-        let mut stats = set.stats.clone();
-        let same = check_labels_in_physics(
-            &scene,
-            &MeshLibrary::default(),
-            &gripper,
-            labels.clone(),
-            &check,
-            &mut stats,
-        );
+        let (same, stats) = run(&check);
         assert_eq!(same, labels);
         assert_eq!((stats.physics_checked, stats.physics_failed), (0, 0));
     }
