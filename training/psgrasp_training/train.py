@@ -303,13 +303,18 @@ def init_weights_path(cfg: Config) -> Path:
     return path if path.is_absolute() else TRAINING_DIR / path
 
 
+def same_network(a: Config, b: Config) -> bool:
+    """Whether checkpoints of `a` load into the network of `b` (same model config and variant)."""
+    return a.to_dict()["model"] == b.to_dict()["model"] and a.variant == b.variant
+
+
 def init_from_weights(net: torch.nn.Module, cfg: Config, log=print) -> float:
     """Load train.init_weights' model weights into `net` (a fine-tune's start); returns the
     checkpoint's training time in seconds, which the fine-tune's time continues."""
     path = init_weights_path(cfg)
     state = load_checkpoint_file(path)
     old: Config = state["config"]
-    if old.to_dict()["model"] != cfg.to_dict()["model"] or old.variant != cfg.variant:
+    if not same_network(old, cfg):
         raise RunError(f"train.init_weights {path}: its model config or variant differs from this run's")
     net.load_state_dict(state["model"])
     elapsed = float(state.get("elapsed_s", 0.0))
@@ -340,7 +345,7 @@ def fit(cfg: Config, data: Path, run_dir: Path, make_net, step_fn, evaluate_fn, 
     if resume:
         state = load_checkpoint(run_dir)
         old: Config = state["config"]
-        if old.to_dict()["model"] != cfg.to_dict()["model"] or old.variant != cfg.variant or old.seed != cfg.seed:
+        if not same_network(old, cfg) or old.seed != cfg.seed:
             raise RunError(f"{run_dir}: --resume with a different model, variant or seed than the checkpoint")
         if state["dataset"].manifest_sha256 != ds.info.manifest_sha256:
             log("warning: the dataset manifest changed since the checkpoint (resuming anyway)")

@@ -408,15 +408,11 @@ pub struct ManifestScene {
     #[serde(default)]
     pub wall_zones: psgrasp_sim::WallZones,
     /// Physical grasps run through the labels' physics check (absent when it is off).
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::labels::is_zero")]
     pub physics_checked: usize,
     /// Of those, the ones that did not hold their object.
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::labels::is_zero")]
     pub physics_failed: usize,
-}
-
-fn is_zero(n: &usize) -> bool {
-    *n == 0
 }
 
 /// The dataset manifest (`manifest.json`).

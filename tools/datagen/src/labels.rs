@@ -198,11 +198,26 @@ pub struct LabelStats {
     pub physics_failed: usize,
 }
 
-fn is_zero(n: &usize) -> bool {
+/// `skip_serializing_if` for counters that only some datasets have.
+pub(crate) fn is_zero(n: &usize) -> bool {
     *n == 0
 }
 
 impl LabelStats {
+    /// Sets the counts of what is stored — configurations, collision-free grasps, grasps per
+    /// object (its length, the scene's objects, is kept) and graspable objects — from `labels`.
+    pub fn count_stored(&mut self, labels: &[GraspLabel]) {
+        self.configurations = labels.len();
+        self.grasps = labels.iter().map(GraspLabel::free_count).sum();
+        self.grasps_per_object.iter_mut().for_each(|n| *n = 0);
+        for label in labels {
+            if let Some(n) = self.grasps_per_object.get_mut(label.object as usize) {
+                *n += label.free_count();
+            }
+        }
+        self.graspable_objects = self.grasps_per_object.iter().filter(|n| **n > 0).count();
+    }
+
     /// Share of tested gripper poses that were collision-free.
     pub fn free_pose_share(&self) -> f64 {
         if self.poses_checked == 0 {
@@ -550,11 +565,6 @@ pub fn generate_labels(
             }
         }
     }
-    for l in &labels {
-        stats.configurations += 1;
-        stats.grasps += l.free_count();
-        stats.grasps_per_object[l.object as usize] += l.free_count();
-    }
-    stats.graspable_objects = stats.grasps_per_object.iter().filter(|g| **g > 0).count();
+    stats.count_stored(&labels);
     LabelSet { labels, stats }
 }

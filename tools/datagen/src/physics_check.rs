@@ -136,15 +136,7 @@ pub fn check_labels_in_physics(
             })
         })
         .collect();
-    stats.configurations = kept.len();
-    stats.grasps = kept.iter().map(GraspLabel::free_count).sum();
-    stats.grasps_per_object.iter_mut().for_each(|n| *n = 0);
-    for label in &kept {
-        if let Some(n) = stats.grasps_per_object.get_mut(label.object as usize) {
-            *n += label.free_count();
-        }
-    }
-    stats.graspable_objects = stats.grasps_per_object.iter().filter(|n| **n > 0).count();
+    stats.count_stored(&kept);
     kept
 }
 
