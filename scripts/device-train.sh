@@ -6,18 +6,25 @@
 # with OUT/summary.txt saying what ran and how it ended. OUT is $OUT where set (the device
 # machine's return folder), else out/device-run.
 #
-#   scripts/device-train.sh [--psgrasp BIN] [--scenes N] [--seed S] [--minutes M]
-#       [--datagen-config FILE] [--quick] [--device auto|cuda|cpu] [--threads T]
+#   scripts/device-train.sh [--psgrasp BIN|BIN.xz] [--scenes N] [--seed S] [--minutes M]
+#       [--datagen-config FILE] [--datagen-seconds S] [--objects SOURCE] [--mesh-archive FILE]
+#       [--quick] [--device auto|cuda|cpu] [--threads T]
 #       [--work DIR] [--out DIR] [--no-preflight] [--with-reference]
 #       [NAME=TRAINING_CONFIG ...]
 #
-# Defaults: target/release/psgrasp, 1000 scenes, seed 2026, 6 minutes, device auto, 4 CPU threads
-# per run, and the runs 8app=training/configs/gpu.toml,
+# Defaults: target/release/psgrasp, 1000 scenes, seed 2026, procedural objects, 6 minutes, device
+# auto, 4 CPU threads per run, and the runs 8app=training/configs/gpu.toml,
 # wo-kappa=training/configs/gpu-ablation-1app-cosine.toml, vgn=training/configs/gpu-vgn.toml.
 # Python: $PSGRASP_PYTHON, else python3 (needs torch, numpy, safetensors, onnx, onnxruntime).
 # Before the real data, a preflight trains the tiny configs (the two-stage model past its MLP
 # warm-up, and the VGN-style net) on 3 quick scenes on the same device, and a run that fails stops
 # the others: a broken call ends within a minute and leaves device time for a fixed rerun.
+# --objects meshes with --mesh-archive FILE (a tar.xz of ~/.cache/psgrasp/objects' ycb/ and
+# random_urdfs/ folders, and its cache/ of convex decompositions if present) generates the scenes
+# from the fetched meshes, as `psgrasp datagen` does here. --datagen-seconds S time-boxes the
+# datagen (a slow labeler such as the physics check): after S seconds it stops and keeps the
+# longest prefix of scenes, rounded down to a multiple of 20 (the validation split), with the
+# manifest a plain `psgrasp datagen --scenes P` writes, so that the summary's P reproduces the data.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 PSGRASP="$ROOT/target/release/psgrasp"
@@ -25,6 +32,9 @@ SCENES=1000
 SEED=2026
 MINUTES=6
 DATAGEN_CONFIG=""
+DATAGEN_SECONDS=0
+OBJECTS=procedural
+MESH_ARCHIVE=""
 QUICK=()
 DEVICE=auto
 THREADS=4
@@ -42,6 +52,9 @@ while [ $# -gt 0 ]; do
         --seed) SEED="$2"; shift 2 ;;
         --minutes) MINUTES="$2"; shift 2 ;;
         --datagen-config) DATAGEN_CONFIG="$(realpath "$2")"; shift 2 ;;
+        --datagen-seconds) DATAGEN_SECONDS="$2"; shift 2 ;;
+        --objects) OBJECTS="$2"; shift 2 ;;
+        --mesh-archive) MESH_ARCHIVE="$(realpath "$2")"; shift 2 ;;
         --quick) QUICK=(--quick); shift ;;
         --no-preflight) PREFLIGHT=0; shift ;;
         --with-reference) EXCLUDE=(); shift ;;
@@ -49,7 +62,7 @@ while [ $# -gt 0 ]; do
         --threads) THREADS="$2"; shift 2 ;;
         --work) WORK="$2"; shift 2 ;;
         --out) OUT_DIR="$2"; shift 2 ;;
-        -h | --help) sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h | --help) sed -n '2,27p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *=*) RUNS+=("$1"); shift ;;
         *) die "unknown argument '$1' (see --help)" ;;
     esac
@@ -58,8 +71,13 @@ if [ ${#RUNS[@]} -eq 0 ]; then
     RUNS=(8app=training/configs/gpu.toml wo-kappa=training/configs/gpu-ablation-1app-cosine.toml
           vgn=training/configs/gpu-vgn.toml)
 fi
-[ -x "$PSGRASP" ] || die "no psgrasp binary at $PSGRASP (cargo build --release --bins, or --psgrasp BIN)"
+case "$PSGRASP" in
+    *.xz) [ -f "$PSGRASP" ] || die "no compressed psgrasp binary at $PSGRASP" ;;
+    *) [ -x "$PSGRASP" ] || die "no psgrasp binary at $PSGRASP (cargo build --release --bins, or --psgrasp BIN)" ;;
+esac
 [ -z "$DATAGEN_CONFIG" ] || [ -f "$DATAGEN_CONFIG" ] || die "no datagen config $DATAGEN_CONFIG"
+[ -z "$MESH_ARCHIVE" ] || [ -f "$MESH_ARCHIVE" ] || die "no mesh archive $MESH_ARCHIVE"
+[[ "$DATAGEN_SECONDS" =~ ^[0-9]+$ ]] || die "--datagen-seconds takes whole seconds"
 NAMES=()
 CONFIGS=()
 for r in "${RUNS[@]}"; do
@@ -88,6 +106,18 @@ say "psgrasp device training run, $(date -u +%Y-%m-%dT%H:%M:%SZ) on $(uname -n),
 say "commit: $(git -C "$ROOT" rev-parse HEAD 2>/dev/null || echo unknown)"
 say "torch: $("$PY" -c 'import torch; print(torch.__version__, "| cuda:", torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none")')"
 say "budget per run: $MINUTES min; device $DEVICE; $THREADS CPU threads per run"
+
+# The carried binary (compressed to fit the call's 64 MiB) and meshes, unpacked into the work folder.
+if [[ "$PSGRASP" == *.xz ]]; then
+    xz -dc "$PSGRASP" > "$WORK/psgrasp" && chmod +x "$WORK/psgrasp" || die "cannot unpack $PSGRASP"
+    PSGRASP="$WORK/psgrasp"
+fi
+MESH_ARGS=()
+if [ -n "$MESH_ARCHIVE" ]; then
+    mkdir -p "$WORK/objects"
+    tar -xJf "$MESH_ARCHIVE" -C "$WORK/objects" || die "cannot unpack $MESH_ARCHIVE"
+    MESH_ARGS=(--mesh-dir "$WORK/objects")
+fi
 
 export PYTHONPATH="$ROOT/training${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 OMP_NUM_THREADS="$THREADS"
 export CUBLAS_WORKSPACE_CONFIG="${CUBLAS_WORKSPACE_CONFIG:-:4096:8}"
@@ -121,32 +151,64 @@ train_side_by_side() {
     for i in "${!pids[@]}"; do RCS[$i]=${by_pid[${pids[$i]}]}; done
 }
 
-# 1. Preflight: the tiny configs on this device, on 3 quick scenes.
+# 1. The training scenes start on every core, in the background, while the preflight runs.
+t0=$SECONDS
+# datagen_args N: the arguments of a datagen of the first N scenes.
+datagen_args() {
+    DATAGEN_ARGS=(datagen --scenes "$1" --objects "$OBJECTS" "${MESH_ARGS[@]}" --difficulty train
+        --seed "$SEED" --out "$WORK/data" --quiet "${QUICK[@]}" ${DATAGEN_CONFIG:+--config "$DATAGEN_CONFIG"})
+}
+datagen_args "$SCENES"
+if [ "$DATAGEN_SECONDS" -gt 0 ]; then
+    timeout "$DATAGEN_SECONDS" "$PSGRASP" "${DATAGEN_ARGS[@]}" > "$WORK/datagen.log" 2>&1 &
+else
+    "$PSGRASP" "${DATAGEN_ARGS[@]}" > "$WORK/datagen.log" 2>&1 &
+fi
+DATAGEN_PID=$!
+stop_datagen() { kill "$DATAGEN_PID" 2>/dev/null || true; wait "$DATAGEN_PID" 2>/dev/null || true; }
+
+# 2. Preflight: the tiny configs on this device, on 3 quick scenes.
 if [ "$PREFLIGHT" = 1 ]; then
-    t0=$SECONDS
+    t1=$SECONDS
     "$PSGRASP" datagen --scenes 3 --quick --objects procedural --seed 11 --out "$WORK/preflight-data" \
         --quiet > "$WORK/preflight-datagen.log" 2>&1 \
-        || { cat "$WORK/preflight-datagen.log" >&2; die "preflight datagen failed"; }
+        || { stop_datagen; cat "$WORK/preflight-datagen.log" >&2; die "preflight datagen failed"; }
     PRE=("8app=$ROOT/training/configs/tiny.toml" "vgn=$ROOT/training/configs/vgn-tiny.toml")
     train_side_by_side "$WORK/preflight-data" "$WORK/preflight" 5 "${PRE[@]}"
     for i in "${!PRE[@]}"; do
         name="${PRE[$i]%%=*}"
         if [ "${RCS[$i]}" -ne 0 ]; then
+            stop_datagen
             say "preflight $name: FAILED (exit ${RCS[$i]}); last lines:"
             tail -n 25 "$WORK/preflight/$name.log" | tee -a "$SUMMARY"
             cp "$WORK/preflight/$name.log" "$OUT_DIR/preflight-$name.log"
             exit 1
         fi
     done
-    say "preflight: tiny 8app and vgn trained and exported on device $DEVICE in $((SECONDS - t0)) s"
+    say "preflight: tiny 8app and vgn trained and exported on device $DEVICE in $((SECONDS - t1)) s (beside the datagen)"
 fi
 
-# 2. The training scenes, on every core.
-t0=$SECONDS
-"$PSGRASP" datagen --scenes "$SCENES" --objects procedural --difficulty train --seed "$SEED" \
-    --out "$WORK/data" --quiet "${QUICK[@]}" ${DATAGEN_CONFIG:+--config "$DATAGEN_CONFIG"} \
-    > "$WORK/datagen.log" 2>&1 || { cat "$WORK/datagen.log" >&2; die "datagen failed"; }
-say "datagen: $SCENES scenes, seed $SEED${DATAGEN_CONFIG:+, config $DATAGEN_CONFIG}${QUICK[*]:+ (quick labels)}: $((SECONDS - t0)) s"
+rc=0
+wait "$DATAGEN_PID" || rc=$?
+if [ "$DATAGEN_SECONDS" -gt 0 ]; then
+    [ "$rc" = 0 ] || [ "$rc" = 124 ] || { cat "$WORK/datagen.log" >&2; die "datagen failed (exit $rc)"; }
+    # The longest prefix of listed scenes, a multiple of 20; then the manifest of exactly those.
+    SCENES="$("$PY" -c 'import json, sys
+listed = {s["index"] for s in json.load(open(sys.argv[1]))["scenes"]}
+p = 0
+while p in listed:
+    p += 1
+print(min(p, int(sys.argv[2])) // 20 * 20)' "$WORK/data/manifest.json" "$SCENES")"
+    [ "$SCENES" -gt 0 ] || die "datagen made no 20 scenes in $DATAGEN_SECONDS s"
+    rm -f "$WORK/data/manifest.json"
+    datagen_args "$SCENES"
+    "$PSGRASP" "${DATAGEN_ARGS[@]}" >> "$WORK/datagen.log" 2>&1 || { cat "$WORK/datagen.log" >&2; die "datagen failed"; }
+    say "datagen: time-boxed to $DATAGEN_SECONDS s, kept the first $SCENES scenes"
+else
+    [ "$rc" = 0 ] || { cat "$WORK/datagen.log" >&2; die "datagen failed (exit $rc)"; }
+fi
+say "datagen: $SCENES scenes, seed $SEED, objects $OBJECTS${DATAGEN_CONFIG:+, config $DATAGEN_CONFIG}${QUICK[*]:+ (quick labels)}: $((SECONDS - t0)) s"
+say "  manifest sha256 $(sha256sum "$WORK/data/manifest.json" | cut -d' ' -f1); $(tail -n 3 "$WORK/datagen.log" | tr '\n' ' ')"
 
 # 3. The runs side by side, each sized to the same budget, then packed.
 t0=$SECONDS
