@@ -190,8 +190,7 @@ fi
 
 rc=0
 wait "$DATAGEN_PID" || rc=$?
-if [ "$DATAGEN_SECONDS" -gt 0 ]; then
-    [ "$rc" = 0 ] || [ "$rc" = 124 ] || { cat "$WORK/datagen.log" >&2; die "datagen failed (exit $rc)"; }
+if [ "$DATAGEN_SECONDS" -gt 0 ] && [ "$rc" = 124 ]; then
     # The longest prefix of listed scenes, a multiple of 20; then the manifest of exactly those.
     SCENES="$("$PY" -c 'import json, sys
 listed = {s["index"] for s in json.load(open(sys.argv[1]))["scenes"]}
