@@ -22,9 +22,10 @@
 # --objects meshes with --mesh-archive FILE (a tar.xz of ~/.cache/psgrasp/objects' ycb/ and
 # random_urdfs/ folders, and its cache/ of convex decompositions if present) generates the scenes
 # from the fetched meshes, as `psgrasp datagen` does here. --datagen-seconds S time-boxes the
-# datagen (a slow labeler such as the physics check): after S seconds it stops and keeps the
-# longest prefix of scenes, rounded down to a multiple of 20 (the validation split), with the
-# manifest a plain `psgrasp datagen --scenes P` writes, so that the summary's P reproduces the data.
+# datagen (a slow labeler such as the physics check): one that is still running after S seconds
+# is stopped and keeps the longest prefix of scenes, rounded down to a multiple of 20 (the
+# validation split), with the manifest a plain `psgrasp datagen --scenes P` writes, so that the
+# summary's P reproduces the data; one that finishes in time keeps every scene.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 PSGRASP="$ROOT/target/release/psgrasp"
@@ -62,7 +63,7 @@ while [ $# -gt 0 ]; do
         --threads) THREADS="$2"; shift 2 ;;
         --work) WORK="$2"; shift 2 ;;
         --out) OUT_DIR="$2"; shift 2 ;;
-        -h | --help) sed -n '2,27p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h | --help) sed -n '2,28p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *=*) RUNS+=("$1"); shift ;;
         *) die "unknown argument '$1' (see --help)" ;;
     esac
