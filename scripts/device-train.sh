@@ -2,7 +2,8 @@
 # Train the models of docs/evaluation.md in one call on a lent GPU (training/README.md, "Training
 # on a lent GPU"): generate the training scenes on every core, train the runs side by side on the
 # one GPU, each sized to the same wall-clock budget (`train --fit-minutes`), export them, and pack
-# each run (model directory, per-step log, config, validation, console log) into OUT/NAME.tar.gz,
+# each run (model directory, latest checkpoint, per-step log, config, validation, console log) into
+# OUT/NAME.tar.gz,
 # with OUT/summary.txt saying what ran and how it ended. OUT is $OUT where set (the device
 # machine's return folder), else out/device-run.
 #
@@ -17,8 +18,11 @@
 # wo-kappa=training/configs/gpu-ablation-1app-cosine.toml, vgn=training/configs/gpu-vgn.toml.
 # Python: $PSGRASP_PYTHON, else python3 (needs torch, numpy, safetensors, onnx, onnxruntime).
 # Before the real data, a preflight trains the tiny configs (the two-stage model past its MLP
-# warm-up, and the VGN-style net) on 3 quick scenes on the same device, and a run that fails stops
-# the others: a broken call ends within a minute and leaves device time for a fixed rerun.
+# warm-up, and the VGN-style net) on 3 quick scenes on the same device, and a preflight run that
+# fails stops the other: a broken call ends within a minute and leaves device time for a fixed
+# rerun. The real runs are independent: one that fails leaves the others to finish and be packed.
+# Each pack holds the run's checkpoints/latest.pt (resume or re-export it here) unless that makes
+# the pack exceed the 16 MiB a returned file may have; the summary then says it was left out.
 # --objects meshes with --mesh-archive FILE (a tar.xz of ~/.cache/psgrasp/objects' ycb/ and
 # random_urdfs/ folders, and its cache/ of convex decompositions if present) generates the scenes
 # from the fetched meshes, as `psgrasp datagen` does here. --datagen-seconds S time-boxes the
@@ -123,12 +127,13 @@ fi
 export PYTHONPATH="$ROOT/training${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 OMP_NUM_THREADS="$THREADS"
 export CUBLAS_WORKSPACE_CONFIG="${CUBLAS_WORKSPACE_CONFIG:-:4096:8}"
 
-# train_side_by_side DATA DIR MINUTES NAME=CONFIG...: the runs side by side on one device, each
-# fitted to MINUTES (DIR/NAME, console log DIR/NAME.log); the first run that fails stops the others
-# (exit 143). Exit codes land in RCS, in argument order.
+# train_side_by_side DATA DIR MINUTES STOP NAME=CONFIG...: the runs side by side on one device,
+# each fitted to MINUTES (DIR/NAME, console log DIR/NAME.log); with STOP=stop the first run that
+# fails stops the others (exit 143), with STOP=independent the others go on. Exit codes land in
+# RCS, in argument order.
 train_side_by_side() {
-    local data="$1" dir="$2" minutes="$3" r pid rc p i
-    shift 3
+    local data="$1" dir="$2" minutes="$3" stop="$4" r pid rc p i
+    shift 4
     local -a pids=() left=() keep=()
     local -A by_pid=()
     mkdir -p "$dir"
@@ -146,7 +151,7 @@ train_side_by_side() {
         keep=()
         for p in "${left[@]}"; do [ "$p" = "$pid" ] || keep+=("$p"); done
         left=("${keep[@]}")
-        if [ "$rc" -ne 0 ] && [ ${#left[@]} -gt 0 ]; then kill "${left[@]}" 2>/dev/null || true; fi
+        if [ "$stop" = stop ] && [ "$rc" -ne 0 ] && [ ${#left[@]} -gt 0 ]; then kill "${left[@]}" 2>/dev/null || true; fi
     done
     RCS=()
     for i in "${!pids[@]}"; do RCS[$i]=${by_pid[${pids[$i]}]}; done
@@ -175,7 +180,7 @@ if [ "$PREFLIGHT" = 1 ]; then
         --quiet > "$WORK/preflight-datagen.log" 2>&1 \
         || { stop_datagen; cat "$WORK/preflight-datagen.log" >&2; die "preflight datagen failed"; }
     PRE=("8app=$ROOT/training/configs/tiny.toml" "vgn=$ROOT/training/configs/vgn-tiny.toml")
-    train_side_by_side "$WORK/preflight-data" "$WORK/preflight" 5 "${PRE[@]}"
+    train_side_by_side "$WORK/preflight-data" "$WORK/preflight" 5 stop "${PRE[@]}"
     for i in "${!PRE[@]}"; do
         name="${PRE[$i]%%=*}"
         if [ "${RCS[$i]}" -ne 0 ]; then
@@ -214,7 +219,7 @@ say "  manifest sha256 $(sha256sum "$WORK/data/manifest.json" | cut -d' ' -f1); 
 t0=$SECONDS
 ARGS=()
 for i in "${!NAMES[@]}"; do ARGS+=("${NAMES[$i]}=${CONFIGS[$i]}"); done
-train_side_by_side "$WORK/data" "$WORK/runs" "$MINUTES" "${ARGS[@]}"
+train_side_by_side "$WORK/data" "$WORK/runs" "$MINUTES" independent "${ARGS[@]}"
 FAILED=0
 for i in "${!NAMES[@]}"; do
     rc="${RCS[$i]}"
@@ -227,7 +232,7 @@ for i in "${!NAMES[@]}"; do
     cp "$WORK/data/manifest.json" "$run/dataset-manifest.json" 2>/dev/null || true
     if [ "$rc" -ne 0 ] || [ ! -f "$run/model/card.json" ]; then
         FAILED=1
-        say "run $name ($(basename "${CONFIGS[$i]}")): FAILED (exit $rc$([ "$rc" = 143 ] && echo ', stopped after another run failed')); last lines:"
+        say "run $name ($(basename "${CONFIGS[$i]}")): FAILED (exit $rc); last lines:"
         tail -n 15 "$WORK/runs/$name.log" | tee -a "$SUMMARY"
     else
         iterations="$("$PY" -c 'import json, sys; print(json.load(open(sys.argv[1]))["training"]["iterations"])' \
@@ -245,6 +250,15 @@ for i in "${!NAMES[@]}"; do
     # The export's reference inputs and outputs (30 MB for base 16; returned files are limited to
     # 16 MiB each) stay behind unless --with-reference.
     [ ${#files[@]} -eq 0 ] || tar -czf "$OUT_DIR/$name.tar.gz" "${EXCLUDE[@]}" -C "$run" "${files[@]}"
+    if [ -f "$run/checkpoints/latest.pt" ]; then
+        tar -czf "$OUT_DIR/$name.tar.gz.tmp" "${EXCLUDE[@]}" -C "$run" "${files[@]}" checkpoints/latest.pt
+        if [ "$(stat -c %s "$OUT_DIR/$name.tar.gz.tmp")" -le $((16 * 1024 * 1024)) ]; then
+            mv "$OUT_DIR/$name.tar.gz.tmp" "$OUT_DIR/$name.tar.gz"
+        else
+            rm -f "$OUT_DIR/$name.tar.gz.tmp"
+            say "  $name: checkpoints/latest.pt left out (the pack would exceed 16 MiB)"
+        fi
+    fi
 done
 say "training: $((SECONDS - t0)) s for ${#NAMES[@]} runs side by side"
 ls -l "$OUT_DIR" | tee -a "$SUMMARY"

@@ -46,13 +46,15 @@ tar -xzf "$E2E/out/8app.tar.gz" -C "$E2E/8app"
 tar -xzf "$E2E/out/vgn.tar.gz" -C "$E2E/vgn"
 PSGRASP_TEST_MODEL_DIR="$E2E/8app/model" cargo test --workspace --features ort --test learned_model
 PSGRASP_TEST_VGN_DIR="$E2E/vgn/model" cargo test --workspace --features ort --test vgn_model
-# A run that fails stops the others, and the call says so (exit 1, summary); its datagen is
+# A run that fails leaves the others to finish and be packed with their checkpoint (a lent GPU's
+# call is not wasted by one broken config); the call says so (exit 1, summary). Its datagen is
 # time-boxed (--datagen-seconds) with a box it fits in, so all 3 scenes are kept.
 printf '[train]\nlr = -1.0\n' > "$E2E/broken.toml"
 rc=0
 scripts/device-train.sh "${TINY_DEVICE_RUN[@]}" --no-preflight --datagen-seconds 600 --work "$E2E/work-broken" --out "$E2E/out-broken" \
     8app=training/configs/tiny.toml broken="$E2E/broken.toml" > "$E2E/broken.log" 2>&1 || rc=$?
 grep -q "run broken (broken.toml): FAILED (exit 2)" "$E2E/out-broken/summary.txt" \
-    && grep -q "run 8app (tiny.toml): FAILED (exit 143, stopped after another run failed)" "$E2E/out-broken/summary.txt" \
+    && grep -q "run 8app (tiny.toml): [0-9]* iterations" "$E2E/out-broken/summary.txt" \
+    && tar -tzf "$E2E/out-broken/8app.tar.gz" | grep -qx "checkpoints/latest.pt" \
     && grep -q "^datagen: 3 scenes, seed 11, objects procedural" "$E2E/out-broken/summary.txt" \
-    && [ "$rc" = 1 ] || { echo "device-train.sh did not stop on a failed run (exit $rc)"; cat "$E2E/broken.log"; exit 1; }
+    && [ "$rc" = 1 ] || { echo "device-train.sh: a failed run did not leave the other run packed (exit $rc)"; cat "$E2E/broken.log"; exit 1; }
