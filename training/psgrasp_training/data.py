@@ -22,6 +22,11 @@ from .checkpoint import DatasetInfo
 from .config import Config
 from .model import N_APPROACHES
 
+#: Labelled grasps of at most this quality are not good grasps (the labeler keeps quality above
+#: 0.5, the paper's rule; a dataset made with `failed_labels = "zero_quality"` also stores the
+#: grasps that fail the physics check, with quality 0).
+MIN_LABEL_QUALITY = 0.5
+
 SCENE_TENSORS = ("normals", "label_grid", "grasp_contact", "grasp_baseline", "grasp_width", "grasp_quality",
                  "grasp_collision_free")
 

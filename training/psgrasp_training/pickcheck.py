@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import torch
 
 from .config import Config
-from .data import SceneDataset
+from .data import MIN_LABEL_QUALITY, SceneDataset
 from .decode import (approach_vectors, class_probabilities, contact_voxels, decode, sample_features,
                      subvoxel_points)
 from .losses import GraspIndex
@@ -141,7 +141,8 @@ def scene_picks(net: GraspNet, normals: torch.Tensor, extent_m: list[float], vox
 
 def matched_labels(scene, points, baselines, widths, approaches, pc: PickCheckConfig,
                    max_neighbours: int = 32, chunk: int = 2048) -> torch.Tensor:
-    """[N] index of a labelled collision-free grasp each pick matches (−1: none): contact within
+    """[N] index of a labelled good (quality above MIN_LABEL_QUALITY) collision-free grasp each
+    pick matches (−1: none): contact within
     match_radius_m (the nearest `max_neighbours` labels), baseline within match_angle_deg, width
     within match_width_m, and a label approach within match_approach_deg of the pick's free."""
     n = len(points)
@@ -158,6 +159,7 @@ def matched_labels(scene, points, baselines, widths, approaches, pc: PickCheckCo
         g = nb.clamp(min=0)
         ok = valid & ((scene.baseline[g] * baselines[s:e, None]).sum(-1) >= cos_angle)
         ok &= (scene.width[g] - widths[s:e, None]).abs() <= pc.match_width_m
+        ok &= scene.quality[g] > MIN_LABEL_QUALITY  # not a label that failed the physics check
         if not bool(ok.any()):
             continue
         rows, cols = ok.nonzero(as_tuple=True)

@@ -35,7 +35,7 @@ from torch.nn import functional as F
 from . import __version__
 from .checkpoint import DatasetInfo, load_checkpoint
 from .config import Config
-from .data import Scene, SceneDataset, read_scene
+from .data import MIN_LABEL_QUALITY, Scene, SceneDataset, read_scene
 from .decode import approach_vectors
 from .model import Conv3d, ConvTranspose3d
 
@@ -44,8 +44,6 @@ VGN_OUTPUTS = ("quality", "baseline", "approach", "width")
 #: Card format of VGN-style model directories.
 VGN_CARD_FORMAT = "psgrasp-vgn-model"
 VGN_FORMAT_VERSION = 1
-#: Labelled grasps of at most this quality are not targets (the data set's rule for a good grasp).
-MIN_LABEL_QUALITY = 0.5
 #: Weight of the width MSE (in voxel units), as VGN.
 WIDTH_WEIGHT = 0.01
 LOG_FIELDS = ["step", "loss", "quality", "rotation", "width", "positives", "lr", "seconds", "elapsed_s"]

@@ -407,8 +407,12 @@ pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
     let checked: usize = manifest.scenes.iter().map(|s| s.physics_checked).sum();
     if checked > 0 {
         let failed: usize = manifest.scenes.iter().map(|s| s.physics_failed).sum();
+        let fate = match manifest.config.physics_check.failed_labels {
+            crate::FailedLabels::Drop => "were dropped",
+            crate::FailedLabels::ZeroQuality => "were kept with quality 0",
+        };
         println!(
-            "physics check of the labels: {failed} of {checked} grasps ({:.1} %) did not hold their object and were dropped",
+            "physics check of the labels: {failed} of {checked} grasps ({:.1} %) did not hold their object and {fate}",
             100.0 * failed as f64 / checked as f64
         );
     }

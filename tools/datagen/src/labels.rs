@@ -193,7 +193,8 @@ pub struct LabelStats {
     /// [`crate::physics_check`]; 0 when the check is off).
     #[serde(skip_serializing_if = "is_zero")]
     pub physics_checked: usize,
-    /// Of those, the ones that did not hold their object (their labels are not stored).
+    /// Of those, the ones that did not hold their object (their labels are dropped, or stored
+    /// with quality 0: [`crate::FailedLabels`]).
     #[serde(skip_serializing_if = "is_zero")]
     pub physics_failed: usize,
 }

@@ -23,7 +23,7 @@ pub use generate::{
     ObjectCounts,
 };
 pub use labels::{generate_labels, GraspLabel, LabelConfig, LabelSet, LabelStats};
-pub use physics_check::{check_labels_in_physics, LabelPhysicsCheck};
+pub use physics_check::{check_labels_in_physics, FailedLabels, LabelPhysicsCheck};
 pub use targets::{label_grid, LABEL_CONTACT, LABEL_EMPTY, LABEL_GRIPPER};
 
 use std::path::PathBuf;

@@ -1,15 +1,36 @@
 //! ACRONYM's physics check of grasp labels ([`check_labels_in_physics`]): the labeler's
 //! antipodal test says that two contacts lie in each other's friction cones; the paper's labels
 //! come from ACRONYM, which also closes the hand on the object in a physics engine and keeps only
-//! the grasps that hold it. Labels that fail are dropped, so that a model learns the grasps that
-//! hold rather than every antipodal pair (on the new benchmark the oracle refuses about 25 labels
-//! per executed pick in challenging scenes for failing this check: docs/evaluation.md).
+//! the grasps that hold it. Labels that fail are dropped (ACRONYM's successful grasps only), so
+//! that a model learns the grasps that hold rather than every antipodal pair (on the new benchmark
+//! the oracle refuses about 25 labels per executed pick in challenging scenes for failing this
+//! check: docs/evaluation.md), or kept with quality 0 ([`FailedLabels::ZeroQuality`]): the contact
+//! and its geometry stay in the labels, the quality says that the grasp does not hold.
 use crate::labels::{GraspLabel, LabelStats};
 use psgrasp_geometry::{GripperModel, N_APPROACHES};
 use psgrasp_sim::execute::{verify_grasp_in_isolation, ExecutionConfig, GraspCommand};
 use psgrasp_sim::{MeshLibrary, Scene};
 use serde::{Deserialize, Deserializer, Serialize};
 use std::collections::HashMap;
+
+/// What becomes of a label that fails the physics check.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FailedLabels {
+    /// Not stored: the labels are ACRONYM's successful grasps only.
+    #[default]
+    Drop,
+    /// Stored with antipodal quality 0: the label grid keeps its contact and gripper space, the
+    /// baseline, width and approach targets keep their geometry, and the quality target says
+    /// that it does not hold (the learned quality becomes "antipodal and holds").
+    ZeroQuality,
+}
+
+impl FailedLabels {
+    fn is_drop(&self) -> bool {
+        *self == Self::Drop
+    }
+}
 
 /// Which labels must also hold their object in ACRONYM's physics check, and how it is run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -28,6 +49,10 @@ pub struct LabelPhysicsCheck {
     /// benchmark's protocol does), the others keep it.
     #[serde(deserialize_with = "execution_over_check_default")]
     pub execution: ExecutionConfig,
+    /// What becomes of the labels that fail (stored only when not the default, so that the
+    /// manifests of datasets made before the setting existed are unchanged).
+    #[serde(skip_serializing_if = "FailedLabels::is_drop")]
+    pub failed_labels: FailedLabels,
 }
 
 /// Deserializes an `[execution]` table over [`LabelPhysicsCheck::default`]'s execution rather
@@ -68,6 +93,7 @@ impl Default for LabelPhysicsCheck {
                 close_after_approach_contact: true,
                 ..ExecutionConfig::default()
             },
+            failed_labels: FailedLabels::Drop,
         }
     }
 }
@@ -97,10 +123,11 @@ impl LabelPhysicsCheck {
 }
 
 /// Keeps the labels that hold their object in ACRONYM's check (those narrower than
-/// [`LabelPhysicsCheck::max_width_m`]; wider ones pass unchecked) and updates `stats` (the
-/// counts of what is stored, and [`LabelStats::physics_checked`] / `physics_failed`, counted
-/// per physical grasp: a label and its mirror are one check). A check that cannot run (an
-/// unusable command or object) counts as a failure. Deterministic.
+/// [`LabelPhysicsCheck::max_width_m`]; wider ones pass unchecked); the others are dropped or
+/// stored with quality 0 ([`LabelPhysicsCheck::failed_labels`]). Updates `stats` (the counts of
+/// what is stored, and [`LabelStats::physics_checked`] / `physics_failed`, counted per physical
+/// grasp: a label and its mirror are one check). A check that cannot run (an unusable command
+/// or object) counts as a failure. Deterministic.
 pub fn check_labels_in_physics(
     scene: &Scene,
     meshes: &MeshLibrary,
@@ -113,29 +140,38 @@ pub fn check_labels_in_physics(
         return labels;
     }
     let mut results: HashMap<GraspKey, bool> = HashMap::new();
-    let kept: Vec<GraspLabel> = labels
-        .into_iter()
-        .filter(|label| {
-            if label.width >= check.max_width_m {
-                return true;
-            }
-            *results.entry(GraspKey::of(label)).or_insert_with(|| {
-                let command = check.command(label, gripper);
-                let holds = verify_grasp_in_isolation(
-                    scene,
-                    meshes,
-                    gripper,
-                    &command,
-                    label.object as usize,
-                    &check.execution,
-                )
-                .is_ok_and(|outcome| outcome.is_success());
-                stats.physics_checked += 1;
-                stats.physics_failed += usize::from(!holds);
-                holds
-            })
+    let mut holds = |label: &GraspLabel| {
+        if label.width >= check.max_width_m {
+            return true;
+        }
+        *results.entry(GraspKey::of(label)).or_insert_with(|| {
+            let command = check.command(label, gripper);
+            let holds = verify_grasp_in_isolation(
+                scene,
+                meshes,
+                gripper,
+                &command,
+                label.object as usize,
+                &check.execution,
+            )
+            .is_ok_and(|outcome| outcome.is_success());
+            stats.physics_checked += 1;
+            stats.physics_failed += usize::from(!holds);
+            holds
         })
-        .collect();
+    };
+    let kept: Vec<GraspLabel> = match check.failed_labels {
+        FailedLabels::Drop => labels.into_iter().filter(|label| holds(label)).collect(),
+        FailedLabels::ZeroQuality => labels
+            .into_iter()
+            .map(|mut label| {
+                if !holds(&label) {
+                    label.quality = 0.0;
+                }
+                label
+            })
+            .collect(),
+    };
     stats.count_stored(&kept);
     kept
 }

@@ -1,9 +1,10 @@
 //! The labels' physics check (ACRONYM's) on analytic scenes: labels that hold stay, grasps that
-//! cannot hold are dropped and counted, a label and its mirror are checked once.
+//! cannot hold are dropped (or kept with quality 0) and counted, a label and its mirror are
+//! checked once.
 use nalgebra::Vector3;
 use psgrasp_datagen::{
-    check_labels_in_physics, generate_labels, GenerationConfig, GraspLabel, LabelConfig,
-    LabelPhysicsCheck, LabelSet,
+    check_labels_in_physics, generate_labels, FailedLabels, GenerationConfig, GraspLabel,
+    LabelConfig, LabelPhysicsCheck, LabelSet,
 };
 use psgrasp_geometry::{CameraIntrinsics, GripperModel};
 use psgrasp_sim::{default_camera, MeshLibrary, Scene};
@@ -69,6 +70,31 @@ fn labels_that_hold_stay_and_grasps_beside_the_object_are_dropped() {
     );
     assert_eq!(stats.grasps_per_object.iter().sum::<usize>(), stats.grasps);
 
+    // Kept with quality 0 instead: every label stays, in order and otherwise unchanged; those
+    // the drop mode keeps keep their quality, the others (the same count) have quality 0.
+    let (all, zero_stats) = run(&LabelPhysicsCheck {
+        max_width_m: 1.0,
+        failed_labels: FailedLabels::ZeroQuality,
+        ..LabelPhysicsCheck::default()
+    });
+    assert_eq!(all.len(), labels.len());
+    assert_eq!(
+        (zero_stats.physics_checked, zero_stats.physics_failed),
+        (stats.physics_checked, stats.physics_failed)
+    );
+    let held: Vec<GraspLabel> = all.iter().filter(|l| l.quality > 0.0).copied().collect();
+    assert_eq!(held, kept);
+    for (stored, given) in all.iter().zip(&labels) {
+        assert_eq!(stored.contact, given.contact);
+        assert!(stored.quality == given.quality || stored.quality == 0.0);
+    }
+    assert_eq!(
+        all.last().unwrap().quality,
+        0.0,
+        "the grasp beside the cube"
+    );
+    assert_eq!(zero_stats.configurations, labels.len());
+
     // Only labels narrower than the limit are checked: at a limit under every width nothing
     // is checked or dropped; off (the default) leaves the labels as they are.
     let narrowest = labels.iter().map(|l| l.width).fold(f32::INFINITY, f32::min);
@@ -100,8 +126,23 @@ fn the_check_is_stored_in_a_dataset_configuration_only_when_on() {
     let json = serde_json::to_value(&on).unwrap();
     assert_eq!(json["physics_check"]["max_width_m"], 0.2f32 as f64);
     // A manifest's configuration reads back as it was written.
-    let back: GenerationConfig = serde_json::from_value(json).unwrap();
+    let back: GenerationConfig = serde_json::from_value(json.clone()).unwrap();
     assert_eq!(back.physics_check, on.physics_check);
+    // The fate of failed labels is written only when not the default drop (manifests of
+    // datasets made before the setting existed stay the same), and reads back.
+    assert!(json["physics_check"].get("failed_labels").is_none());
+    let zero: GenerationConfig =
+        toml::from_str("[physics_check]\nmax_width_m = 0.2\nfailed_labels = \"zero_quality\"\n")
+            .unwrap();
+    assert_eq!(zero.physics_check.failed_labels, FailedLabels::ZeroQuality);
+    let json = serde_json::to_value(&zero).unwrap();
+    assert_eq!(json["physics_check"]["failed_labels"], "zero_quality");
+    let back: GenerationConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(back.physics_check, zero.physics_check);
+    assert!(toml::from_str::<GenerationConfig>(
+        "[physics_check]\nmax_width_m = 0.2\nfailed_labels = \"keep\"\n"
+    )
+    .is_err());
     // Misspelt keys are refused, in the check and in its execution table.
     assert!(toml::from_str::<GenerationConfig>("[physics_check]\nmax_width = 0.2\n").is_err());
     assert!(

@@ -570,12 +570,17 @@ mod tests {
         back.scenes.cell.selection.clearance.opening_clearance_m =
             corrected.cell().selection.clearance.opening_clearance_m;
         assert_eq!(back, corrected);
-        // The Franka-fingertip protocol is the wide-opening one: both take the default hand, the
-        // real Franka hand. The models trained for the 15 mm fingertip are refused under it
-        // (their card's approach depth) and run under a protocol that names `franka-15mm`.
+        // The Franka-fingertip protocol (the new benchmark's) is the wide-opening one with the
+        // oracle's labels physics-checked: both take the default hand, the real Franka hand. The
+        // models trained for the 15 mm fingertip are refused under it (their card's approach
+        // depth) and run under a protocol that names `franka-15mm`.
         let franka = load_protocol(Some(&dir.join("eval-protocol-franka-fingertip.toml"))).unwrap();
         assert_eq!(franka.cell().gripper.tip_beyond_tcp_m, 0.0095);
-        assert_eq!(franka, wide);
+        assert_eq!(franka.oracle.physics_check_max_width_m, 0.2);
+        assert_eq!(wide.oracle.physics_check_max_width_m, 0.0);
+        let mut back = franka.clone();
+        back.oracle = wide.oracle.clone();
+        assert_eq!(back, wide);
         let shipped = crate::DetectorSpec::for_model_dir("default", dir.join("../models/default"));
         assert!(shipped.build(&franka).is_ok());
         let mut old_hand = franka.clone();
