@@ -1,5 +1,6 @@
 """The pick check: matching picks against labels, and the selection rules it applies."""
 
+import dataclasses
 import math
 
 import torch
@@ -47,6 +48,10 @@ def test_a_labelled_grasp_matches_and_its_variations_do_not(box_dataset, tiny_cf
     # A width 20 mm off, an approach the labels mark as colliding: no match.
     assert not match(c, b, w + 0.02, approaches[free])
     assert not match(c, b, w, approaches[blocked])
+    # A label that failed the physics check (kept with quality 0, `failed_labels = "zero_quality"`)
+    # is not a good grasp to match.
+    failed = dataclasses.replace(scene, quality=torch.zeros_like(scene.quality))
+    assert not pick_matches(failed, c[None], b[None], w[None], approaches[free][None], pc)[0]
 
 
 def test_picks_follow_the_selection_rules(box_dataset, tiny_cfg):
