@@ -49,6 +49,8 @@ PY="${PSGRASP_PYTHON:-python3}"
 RUNS=()
 PREFLIGHT=1
 EXCLUDE=(--exclude=model/reference.safetensors)
+# The device tool returns files of at most 16 MiB each.
+RETURNED_FILE_MAX_BYTES=$((16 * 1024 * 1024))
 die() { echo "device-train: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
     case "$1" in
@@ -249,16 +251,16 @@ for i in "${!NAMES[@]}"; do
     done
     # The export's reference inputs and outputs (30 MB for base 16; returned files are limited to
     # 16 MiB each) stay behind unless --with-reference.
-    [ ${#files[@]} -eq 0 ] || tar -czf "$OUT_DIR/$name.tar.gz" "${EXCLUDE[@]}" -C "$run" "${files[@]}"
+    # The checkpoint goes in unless the pack would then exceed a returned file's limit.
     if [ -f "$run/checkpoints/latest.pt" ]; then
-        tar -czf "$OUT_DIR/$name.tar.gz.tmp" "${EXCLUDE[@]}" -C "$run" "${files[@]}" checkpoints/latest.pt
-        if [ "$(stat -c %s "$OUT_DIR/$name.tar.gz.tmp")" -le $((16 * 1024 * 1024)) ]; then
-            mv "$OUT_DIR/$name.tar.gz.tmp" "$OUT_DIR/$name.tar.gz"
-        else
-            rm -f "$OUT_DIR/$name.tar.gz.tmp"
-            say "  $name: checkpoints/latest.pt left out (the pack would exceed 16 MiB)"
+        tar -czf "$OUT_DIR/$name.tar.gz" "${EXCLUDE[@]}" -C "$run" "${files[@]}" checkpoints/latest.pt
+        if [ "$(stat -c %s "$OUT_DIR/$name.tar.gz")" -le "$RETURNED_FILE_MAX_BYTES" ]; then
+            continue
         fi
+        rm -f "$OUT_DIR/$name.tar.gz"
+        say "  $name: checkpoints/latest.pt left out (the pack would exceed 16 MiB)"
     fi
+    [ ${#files[@]} -eq 0 ] || tar -czf "$OUT_DIR/$name.tar.gz" "${EXCLUDE[@]}" -C "$run" "${files[@]}"
 done
 say "training: $((SECONDS - t0)) s for ${#NAMES[@]} runs side by side"
 ls -l "$OUT_DIR" | tee -a "$SUMMARY"
