@@ -113,6 +113,13 @@ pub trait InferenceBackend: Send {
         grid: &NormalGridView<'_>,
         seed: u64,
     ) -> Result<Vec<GraspConfiguration>, InferenceError>;
+    /// Whether [`InferenceBackend::infer`]'s output can depend on `seed` (true unless the backend
+    /// samples nothing). A backend that returns false promises the same configurations for the
+    /// same grid under every seed; the evaluation then plays its rounds on noise-free scenes once
+    /// for all run seeds.
+    fn uses_seed(&self) -> bool {
+        true
+    }
 }
 
 /// A borrowed backend is a backend (the evaluation lends its detectors to a perception chain).
@@ -127,6 +134,10 @@ impl<B: InferenceBackend + ?Sized> InferenceBackend for &mut B {
         seed: u64,
     ) -> Result<Vec<GraspConfiguration>, InferenceError> {
         (**self).infer(grid, seed)
+    }
+
+    fn uses_seed(&self) -> bool {
+        (**self).uses_seed()
     }
 }
 

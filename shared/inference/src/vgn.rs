@@ -351,6 +351,11 @@ impl VgnBackend {
 }
 
 impl InferenceBackend for VgnBackend {
+    /// The network's forward pass and the decoding sample nothing: the seed is unused.
+    fn uses_seed(&self) -> bool {
+        false
+    }
+
     fn name(&self) -> &str {
         "vgn"
     }

@@ -23,6 +23,7 @@ enum SceneSource {
 }
 use crate::records::{write_atomic, RecordsFile, RunDescription, SceneKey, RECORDS_VERSION};
 use crate::report::summarize;
+use crate::seed_copies::{self, SeedCopyPlan};
 use crate::EvalError;
 use anyhow::Context;
 use psgrasp_datagen::cli::{build_library, default_mesh_dir};
@@ -88,6 +89,11 @@ pub struct EvalArgs {
     /// No progress line.
     #[arg(long)]
     pub quiet: bool,
+    /// Run every round, also those that play the same under every seed (a detector that samples
+    /// nothing on the stored noise-free levels), instead of recording copies of them
+    /// ([`crate::seed_copies`]).
+    #[arg(long)]
+    pub run_every_seed: bool,
 }
 
 /// Arguments of `psgrasp testset`.
@@ -202,6 +208,10 @@ fn dedup<T: PartialEq + Clone>(v: &[T]) -> Vec<T> {
 struct Progress {
     total: usize,
     done: usize,
+    /// Rounds this run executes (the rest are finished or copied).
+    to_run: usize,
+    /// Rounds recorded as copies ([`crate::seed_copies`]).
+    copied: usize,
     ran: usize,
     attempts: usize,
     successes: usize,
@@ -234,15 +244,16 @@ impl Progress {
             }
         };
         eprint!(
-            "\r[{}{}] {}/{} scenes  SR {} CR {}  {:.1} s/scene  ETA {:.0} s   ",
+            "\r[{}{}] {}/{} scenes ({} copied)  SR {} CR {}  {:.1} s/scene  ETA {:.0} s   ",
             "#".repeat(filled),
             " ".repeat(30 - filled),
             self.done,
             self.total,
+            self.copied,
             rate(self.successes, self.attempts),
             rate(self.successes, self.objects),
             per,
-            per * (self.total - self.done) as f64
+            per * self.to_run.saturating_sub(self.ran) as f64
         );
         let _ = std::io::stderr().flush();
     }
@@ -380,9 +391,27 @@ fn run_jobs(
         return Ok(());
     }
     // Fail fast on a detector that cannot be built (missing model, bad settings).
+    let mut uses_seed = HashMap::new();
     for d in detectors {
-        d.build(protocol)?;
+        uses_seed.insert(d.name.clone(), d.build(protocol)?.uses_seed());
     }
+    let stored_scenes = !args.generate_scenes;
+    let plan = seed_copies::plan(todo, seeds, records, |key| {
+        !args.run_every_seed
+            && seed_copies::round_is_seed_independent(
+                key.level,
+                stored_scenes,
+                uses_seed.get(&key.detector).copied().unwrap_or(true),
+            )
+    });
+    for (source, copy) in &plan.copy_now {
+        records.append_copy(source, copy)?;
+    }
+    let SeedCopyPlan {
+        run: todo,
+        copy_now,
+        mut copy_after,
+    } = plan;
     let mesh_dir = args.mesh_dir.clone().unwrap_or_else(default_mesh_dir);
     let source = if args.generate_scenes {
         SceneSource::Generated(build_library(args.objects, &mesh_dir)?)
@@ -411,7 +440,9 @@ fn run_jobs(
 
     let mut progress = Progress {
         total,
-        done: total - todo.len(),
+        done: total - todo.len() - copy_after.values().map(Vec::len).sum::<usize>(),
+        to_run: todo.len(),
+        copied: copy_now.len(),
         ran: 0,
         attempts: 0,
         successes: 0,
@@ -494,12 +525,21 @@ fn run_jobs(
         for msg in rx {
             match msg {
                 Ok((key, run)) => {
-                    if let Err(e) = records.append_scene(&key, &run.attempts, &run.summary) {
+                    let copies = copy_after.remove(&key).unwrap_or_default();
+                    let appended = records
+                        .append_scene(&key, &run.attempts, &run.summary)
+                        .and_then(|()| {
+                            copies
+                                .iter()
+                                .try_for_each(|copy| records.append_copy(&key, copy).map(drop))
+                        });
+                    if let Err(e) = appended {
                         stop.store(true, Ordering::Relaxed);
                         first_error.get_or_insert(e.into());
                         continue;
                     }
-                    progress.done += 1;
+                    progress.done += 1 + copies.len();
+                    progress.copied += copies.len();
                     progress.ran += 1;
                     progress.attempts += run.summary.attempts as usize;
                     progress.successes += run.summary.successes as usize;

@@ -126,6 +126,15 @@ impl BuiltDetector {
             BuiltDetector::Oracle => crate::Detector::Oracle,
         }
     }
+
+    /// Whether the detector's proposals can depend on the detection seed (the oracle samples
+    /// labels; backends say so themselves, [`InferenceBackend::uses_seed`]).
+    pub fn uses_seed(&self) -> bool {
+        match self {
+            BuiltDetector::Backend(b) => b.uses_seed(),
+            BuiltDetector::Oracle => true,
+        }
+    }
 }
 
 /// One detector: a name (used on the command line and in records) and its backend settings.

@@ -24,6 +24,7 @@ pub mod plot;
 pub mod protocol;
 pub mod records;
 pub mod report;
+pub mod seed_copies;
 pub mod testset;
 
 pub use cli::{run_eval, EvalArgs};

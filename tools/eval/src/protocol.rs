@@ -290,6 +290,10 @@ pub struct SceneSummary {
     /// in records written before 2026-12-04).
     #[serde(default)]
     pub start_wall_zones: Option<WallZones>,
+    /// Set on a round recorded as a copy of the same round under this run seed (a detector that
+    /// samples nothing on a noise-free stored scene: [`crate::seed_copies`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub copied_from_seed: Option<u64>,
 }
 
 /// An object left in the bin when a scene ended.
@@ -611,6 +615,7 @@ pub fn clear_scene(
             left
         },
         start_wall_zones: Some(start_wall_zones),
+        copied_from_seed: None,
     };
     Ok(SceneRun { attempts, summary })
 }

@@ -258,6 +258,37 @@ impl RecordsFile {
         &self.lines
     }
 
+    /// The attempts and summary of a finished scene (`None` if it has not finished).
+    pub fn finished_scene(&self, key: &SceneKey) -> Option<(Vec<AttemptRecord>, SceneSummary)> {
+        if !self.is_done(key) {
+            return None;
+        }
+        let mut attempts = Vec::new();
+        for line in &self.lines {
+            match line {
+                RecordLine::Attempt { key: k, attempt } if k == key => {
+                    attempts.push(attempt.clone())
+                }
+                RecordLine::Scene { key: k, summary } if k == key => {
+                    return Some((attempts, summary.clone()))
+                }
+                _ => {}
+            }
+        }
+        None
+    }
+
+    /// Appends `copy` as a copy of the finished scene `source` (same attempts and summary, the
+    /// summary naming the seed of the round that was run); false if `source` has not finished.
+    pub fn append_copy(&mut self, source: &SceneKey, copy: &SceneKey) -> Result<bool, EvalError> {
+        let Some((attempts, mut summary)) = self.finished_scene(source) else {
+            return Ok(false);
+        };
+        summary.copied_from_seed = Some(summary.copied_from_seed.unwrap_or(source.seed));
+        self.append_scene(copy, &attempts, &summary)?;
+        Ok(true)
+    }
+
     /// Appends a finished scene: its attempts, then its closing line, in one write.
     pub fn append_scene(
         &mut self,
@@ -303,7 +334,7 @@ fn encode(r: &RecordLine, path: &Path) -> Result<Vec<u8>, EvalError> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::protocol::SceneEnd;
     use psgrasp_inference::BackendConfig;
@@ -318,7 +349,7 @@ mod tests {
         }
     }
 
-    fn attempt(k: u32) -> AttemptRecord {
+    pub(crate) fn attempt(k: u32) -> AttemptRecord {
         AttemptRecord {
             attempt: k,
             objects_before: 3,
@@ -347,7 +378,7 @@ mod tests {
         }
     }
 
-    fn summary() -> SceneSummary {
+    pub(crate) fn summary() -> SceneSummary {
         SceneSummary {
             objects: 3,
             attempts: 2,
@@ -362,6 +393,7 @@ mod tests {
             final_rejections: Some(Default::default()),
             remaining_objects: Vec::new(),
             start_wall_zones: None,
+            copied_from_seed: None,
         }
     }
 

@@ -541,6 +541,7 @@ mod tests {
                 final_rejections: None,
                 remaining_objects: Vec::new(),
                 start_wall_zones: None,
+                copied_from_seed: None,
             },
         }
     }

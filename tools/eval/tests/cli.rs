@@ -21,6 +21,7 @@ fn args(out: &Path, scenes: u64, jobs: usize) -> EvalArgs {
         mesh_dir: None,
         report_only: false,
         quiet: true,
+        run_every_seed: false,
     }
 }
 

@@ -39,6 +39,7 @@ fn eval_args(out: &Path, set: &Path, generate_scenes: bool, seed: u64) -> EvalAr
         mesh_dir: None,
         report_only: false,
         quiet: true,
+        run_every_seed: false,
     }
 }
 
@@ -156,4 +157,98 @@ fn the_committed_test_set_matches_its_manifest() {
         assert_eq!(level.scenes, 100, "{name}");
         assert_eq!(text.iter().filter(|&&b| b == b'\n').count(), 100, "{name}");
     }
+}
+
+/// A run's records as JSON without wall times and the copy marker, sorted.
+fn rounds_without_times(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = RecordsFile::open(dir)
+        .unwrap()
+        .lines()
+        .iter()
+        .map(|line| {
+            let mut value = serde_json::to_value(line).unwrap();
+            let fields = value.as_object_mut().unwrap();
+            fields.retain(|name, _| !name.ends_with("_ms") && name != "copied_from_seed");
+            value.to_string()
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// Which seed each scene's record of `detector` was copied from, by (seed, scene).
+fn copy_sources(dir: &Path, detector: &str) -> Vec<(u64, u64, Option<u64>)> {
+    let mut v: Vec<_> = RecordsFile::open(dir)
+        .unwrap()
+        .lines()
+        .iter()
+        .filter_map(|l| match l {
+            RecordLine::Scene { key, summary } if key.detector == detector => {
+                Some((key.seed, key.scene, summary.copied_from_seed))
+            }
+            _ => None,
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn copied_rounds_equal_rounds_run_under_their_own_seed() {
+    // The shipped network samples nothing: on the stored noise-free scenes its round is the same
+    // under every run seed, so seeds 1 and 2 are recorded as copies of seed 0's round; the
+    // analytic detector samples its candidates with the seed and runs under each. Run for real
+    // (--run-every-seed), every round is the same apart from wall times and the copy marker.
+    let dir = tempfile::tempdir().unwrap();
+    let set = dir.path().join("set");
+    write_set(&set);
+    let list = dir.path().join("detectors.toml");
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default");
+    std::fs::write(
+        &list,
+        format!(
+            "[[detector]]\nname = \"analytic\"\nbackend = {{ kind = \"analytic\" }}\n\n\
+             [[detector]]\nname = \"learned\"\nbackend = {{ kind = \"learned\", model_dir = {:?}, threads = 1 }}\n",
+            model.display().to_string()
+        ),
+    )
+    .unwrap();
+    let run = |out: &Path, scenes: u64, seeds: &[u64], every: bool| {
+        let mut a = eval_args(out, &set, false, 0);
+        a.detectors = vec!["analytic".into(), "learned".into()];
+        a.detectors_file = Some(list.clone());
+        a.scenes = scenes;
+        a.seeds = seeds.to_vec();
+        a.run_every_seed = every;
+        run_eval(&a).unwrap();
+    };
+    let copied = dir.path().join("copied");
+    // An earlier run of scene 0 under seed 0, then both scenes under three seeds: scene 0's
+    // copies come from the stored round, scene 1's from the round this run makes.
+    run(&copied, 1, &[0], false);
+    run(&copied, 2, &[0, 1, 2], false);
+    let every = dir.path().join("every");
+    run(&every, 2, &[0, 1, 2], true);
+
+    let mut expected = Vec::new();
+    for seed in 0..3 {
+        for scene in 0..2 {
+            expected.push((seed, scene, (seed > 0).then_some(0)));
+        }
+    }
+    assert_eq!(copy_sources(&copied, "learned"), expected);
+    assert!(copy_sources(&copied, "analytic")
+        .iter()
+        .all(|(_, _, from)| from.is_none()));
+    assert!(copy_sources(&every, "learned")
+        .iter()
+        .all(|(_, _, from)| from.is_none()));
+    let rounds = rounds_without_times(&copied);
+    assert!(
+        rounds
+            .iter()
+            .any(|l| l.contains("\"type\":\"attempt\"") && l.contains("\"detector\":\"learned\"")),
+        "the network made no attempt: nothing compared"
+    );
+    assert_eq!(rounds, rounds_without_times(&every));
 }

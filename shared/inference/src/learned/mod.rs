@@ -415,6 +415,11 @@ impl LearnedBackend {
 }
 
 impl InferenceBackend for LearnedBackend {
+    /// The network's forward pass and the decoding sample nothing: the seed is unused.
+    fn uses_seed(&self) -> bool {
+        false
+    }
+
     fn name(&self) -> &str {
         &self.name
     }
