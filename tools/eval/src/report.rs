@@ -37,6 +37,10 @@ pub struct CellMetrics {
     pub seeds: usize,
     /// Finished scenes.
     pub scenes: usize,
+    /// Of those, rounds recorded as copies of the same round under another seed
+    /// ([`crate::seed_copies`]).
+    #[serde(default)]
+    pub copied_scenes: usize,
     /// Objects at the start, summed.
     pub objects: usize,
     /// Attempts.
@@ -208,6 +212,7 @@ pub fn summarize(
                 level,
                 seeds: 0,
                 scenes: 0,
+                copied_scenes: 0,
                 objects: 0,
                 attempts: 0,
                 successes: 0,
@@ -240,6 +245,7 @@ pub fn summarize(
                 match line {
                     RecordLine::Scene { key, summary: s } if mine(key) => {
                         c.scenes += 1;
+                        c.copied_scenes += usize::from(s.copied_from_seed.is_some());
                         c.objects += s.objects;
                         c.attempts += s.attempts as usize;
                         c.successes += s.successes as usize;
@@ -367,6 +373,16 @@ impl Summary {
                 counts.push(c.map_or(0, |c| c.scenes).to_string());
             }
             let _ = writeln!(s, "{row} {} |", counts.join(" / "));
+        }
+        let copied: usize = self.cells.iter().map(|c| c.copied_scenes).sum();
+        if copied > 0 {
+            let scenes: usize = self.cells.iter().map(|c| c.scenes).sum();
+            let _ = writeln!(
+                s,
+                "\n{copied} of the {scenes} rounds are copies of the same round under another seed \
+                 (detectors that sample nothing, on the stored noise-free levels: the seed cannot \
+                 change them, so their spread over seeds is 0)."
+            );
         }
         let _ = writeln!(s, "\n## Per level\n");
         let _ = writeln!(

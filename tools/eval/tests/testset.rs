@@ -251,4 +251,9 @@ fn copied_rounds_equal_rounds_run_under_their_own_seed() {
         "the network made no attempt: nothing compared"
     );
     assert_eq!(rounds, rounds_without_times(&every));
+    // The report says how many rounds are copies; the run of every round has none.
+    let md = std::fs::read_to_string(copied.join("summary.md")).unwrap();
+    assert!(md.contains("4 of the 12 rounds are copies"), "{md}");
+    let md = std::fs::read_to_string(every.join("summary.md")).unwrap();
+    assert!(!md.contains("rounds are copies"), "{md}");
 }
