@@ -328,10 +328,15 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
         .chart()
         .render()
         .write_png(&args.out.join("summary.png"))?;
+    if let Some(chart) = crate::kappa::chart(&summary) {
+        chart
+            .render()
+            .write_png(&args.out.join("summary-kappa.png"))?;
+    }
     println!("{md}");
     if !args.quiet {
         eprintln!(
-            "wrote {}/summary.md, summary.json, summary.png",
+            "wrote {}/summary.md, summary.json, summary.png (and summary-kappa.png for detectors with κ)",
             args.out.display()
         );
     }

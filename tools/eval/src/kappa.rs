@@ -1,7 +1,17 @@
 //! Does the learned concentration κ say which grasps succeed? The executed grasps of one detector
 //! and level by κ quartile, with the success rate in each ([`KappaBins`]; the paper's claim is
 //! that κ models the baseline's uncertainty, so confident grasps should succeed more often).
+use crate::plot::{Bar, BarChart, Panel};
+use crate::report::Summary;
 use serde::{Deserialize, Serialize};
+
+/// Legend of [`chart`]: the quartiles, lowest κ first.
+const QUARTILES: [&str; 4] = [
+    "lowest kappa quarter",
+    "second quarter",
+    "third quarter",
+    "highest kappa quarter",
+];
 
 /// The executed grasps of a cell split at the quartiles of their κ.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -19,8 +29,9 @@ pub struct KappaBins {
 }
 
 impl KappaBins {
-    /// The bins of `(κ, success)` pairs; `None` with fewer than 4 attempts or no κ above 0
-    /// (detectors without a baseline distribution).
+    /// The bins of `(κ, success)` pairs; `None` with fewer than 4 attempts, no κ above 0
+    /// (detectors without a baseline distribution) or one κ for all (the "wo κ" ablation's fixed
+    /// κ0: its quarters would split ties arbitrarily).
     pub fn of(attempts: &[(f32, bool)]) -> Option<Self> {
         let mut sorted: Vec<(f32, bool)> = attempts
             .iter()
@@ -31,6 +42,9 @@ impl KappaBins {
             return None;
         }
         sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        if sorted[0].0 == sorted[sorted.len() - 1].0 {
+            return None;
+        }
         let n = sorted.len();
         let mut bins = Self {
             edges: [0.0; 5],
@@ -88,6 +102,47 @@ impl KappaBins {
     }
 }
 
+/// κ against grasp success as a bar chart (`summary-kappa.png`): one panel per level, one group
+/// per detector with κ bins, one bar per κ quartile with its success rate (whisker: the binomial
+/// standard error). `None` when no cell has κ bins.
+pub fn chart(summary: &Summary) -> Option<BarChart> {
+    let panels: Vec<Panel> = summary
+        .levels
+        .iter()
+        .filter_map(|level| {
+            let groups: Vec<(String, Vec<Option<Bar>>)> = summary
+                .cells
+                .iter()
+                .filter(|c| c.level == *level)
+                .filter_map(|c| {
+                    let bins = c.kappa.as_ref()?;
+                    let bars = (0..4)
+                        .map(|q| {
+                            let n = bins.attempts[q];
+                            (n > 0).then(|| {
+                                let p = bins.successes[q] as f64 / n as f64;
+                                (p, (p * (1.0 - p) / n as f64).sqrt())
+                            })
+                        })
+                        .collect();
+                    Some((c.detector.to_uppercase(), bars))
+                })
+                .collect();
+            (!groups.is_empty()).then(|| Panel {
+                title: format!(
+                    "{}: SUCCESS RATE BY KAPPA QUARTER (%)",
+                    format!("{level:?}").to_uppercase()
+                ),
+                groups,
+            })
+        })
+        .collect();
+    (!panels.is_empty()).then(|| BarChart {
+        series: QUARTILES.iter().map(|q| q.to_string()).collect(),
+        panels,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -109,6 +164,9 @@ mod tests {
         );
         // Detectors without κ, or too few attempts, get no bins.
         assert!(KappaBins::of(&[(0.0, true); 10]).is_none());
+        assert!(
+            KappaBins::of(&[(25.0, true), (25.0, false), (25.0, true), (25.0, true)]).is_none()
+        );
         assert!(KappaBins::of(&attempts[..3]).is_none());
     }
 }

@@ -71,6 +71,8 @@ fn two_scene_eval_writes_reports_and_resumes() {
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
+    // The analytic detector has no baseline distribution: no κ chart.
+    assert!(!out.join("summary-kappa.png").exists());
     let md = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(md.contains("| Analytic antipodal (GPD-style) |"), "{md}");
     assert!(md.contains("2 / 2"), "{md}");
@@ -199,4 +201,27 @@ fn executed_grasps_carry_the_detectors_kappa_and_the_report_bins_it() {
     assert!(learned.len() >= 4, "{learned:?}");
     assert!(section.contains("| learned | Easy |"), "{md}");
     assert!(!section.contains("| analytic |"), "{md}");
+    // κ against success as a chart: one panel (easy), one group (the learned detector), its four
+    // κ quarters' success rates with binomial standard errors.
+    let summary: psgrasp_eval::report::Summary =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let chart = psgrasp_eval::kappa::chart(&summary).expect("a detector with κ");
+    assert_eq!(chart.series.len(), 4);
+    assert_eq!(chart.panels.len(), 1);
+    let groups = &chart.panels[0].groups;
+    assert_eq!(groups.len(), 1, "{chart:?}");
+    let (group, bars) = &groups[0];
+    assert_eq!(group, "LEARNED");
+    let bins = summary.cells.iter().find_map(|c| c.kappa.clone()).unwrap();
+    for (q, bar) in bars.iter().enumerate() {
+        let (rate, se) = bar.unwrap();
+        let n = bins.attempts[q] as f64;
+        let p = bins.successes[q] as f64 / n;
+        assert!((rate - p).abs() < 1e-12 && (se - (p * (1.0 - p) / n).sqrt()).abs() < 1e-12);
+    }
+    let png = std::fs::File::open(out.join("summary-kappa.png")).unwrap();
+    let info = png::Decoder::new(std::io::BufReader::new(png))
+        .read_info()
+        .unwrap();
+    assert!(info.info().width > 100 && info.info().height > 100);
 }
