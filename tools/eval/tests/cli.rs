@@ -4,6 +4,8 @@ use psgrasp_eval::records::{RecordLine, RecordsFile, RECORDS_FILE};
 use psgrasp_eval::{run_eval, EvalArgs};
 use std::path::Path;
 
+mod common;
+
 fn args(out: &Path, scenes: u64, jobs: usize) -> EvalArgs {
     EvalArgs {
         detectors: vec!["analytic".into()],
@@ -160,17 +162,7 @@ fn executed_grasps_carry_the_detectors_kappa_and_the_report_bins_it() {
     // analytic detector has no baseline distribution (κ = 0) and gets no κ row.
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let list = dir.path().join("detectors.toml");
-    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default");
-    std::fs::write(
-        &list,
-        format!(
-            "[[detector]]\nname = \"analytic\"\nbackend = {{ kind = \"analytic\" }}\n\n\
-             [[detector]]\nname = \"learned\"\nbackend = {{ kind = \"learned\", model_dir = {:?}, threads = 1 }}\n",
-            model.display().to_string()
-        ),
-    )
-    .unwrap();
+    let list = common::analytic_and_shipped_detectors(dir.path());
     let mut a = args(&out, 4, 2);
     a.detectors = vec!["analytic".into(), "learned".into()];
     a.detectors_file = Some(list);

@@ -9,6 +9,8 @@ use psgrasp_eval::testset::generate_test_scene;
 use psgrasp_eval::{run_eval, EvalArgs, ProtocolConfig, TestSet};
 use std::path::Path;
 
+mod common;
+
 fn write_set(out: &Path) {
     run_testset(&TestSetArgs {
         out: out.to_owned(),
@@ -202,17 +204,7 @@ fn copied_rounds_equal_rounds_run_under_their_own_seed() {
     let dir = tempfile::tempdir().unwrap();
     let set = dir.path().join("set");
     write_set(&set);
-    let list = dir.path().join("detectors.toml");
-    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default");
-    std::fs::write(
-        &list,
-        format!(
-            "[[detector]]\nname = \"analytic\"\nbackend = {{ kind = \"analytic\" }}\n\n\
-             [[detector]]\nname = \"learned\"\nbackend = {{ kind = \"learned\", model_dir = {:?}, threads = 1 }}\n",
-            model.display().to_string()
-        ),
-    )
-    .unwrap();
+    let list = common::analytic_and_shipped_detectors(dir.path());
     let run = |out: &Path, scenes: u64, seeds: &[u64], every: bool| {
         let mut a = eval_args(out, &set, false, 0);
         a.detectors = vec!["analytic".into(), "learned".into()];
