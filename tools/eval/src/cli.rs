@@ -412,6 +412,8 @@ fn run_jobs(
     for (source, copy) in &plan.copy_now {
         records.append_copy(source, copy)?;
     }
+    // The copies just written count as done; the rounds to run and their copies do not.
+    let left = plan.len() - plan.copy_now.len();
     let SeedCopyPlan {
         run: todo,
         copy_now,
@@ -445,7 +447,7 @@ fn run_jobs(
 
     let mut progress = Progress {
         total,
-        done: total - todo.len() - copy_after.values().map(Vec::len).sum::<usize>(),
+        done: total - left,
         to_run: todo.len(),
         copied: copy_now.len(),
         ran: 0,
@@ -536,7 +538,7 @@ fn run_jobs(
                         .and_then(|()| {
                             copies
                                 .iter()
-                                .try_for_each(|copy| records.append_copy(&key, copy).map(drop))
+                                .try_for_each(|copy| records.append_copy(&key, copy))
                         });
                     if let Err(e) = appended {
                         stop.store(true, Ordering::Relaxed);

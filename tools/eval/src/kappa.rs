@@ -2,7 +2,7 @@
 //! and level by κ quartile, with the success rate in each ([`KappaBins`]; the paper's claim is
 //! that κ models the baseline's uncertainty, so confident grasps should succeed more often).
 use crate::plot::{Bar, BarChart, Panel};
-use crate::report::Summary;
+use crate::report::{level_name, Summary};
 use serde::{Deserialize, Serialize};
 
 /// Legend of [`chart`]: the quartiles, lowest κ first.
@@ -131,7 +131,7 @@ pub fn chart(summary: &Summary) -> Option<BarChart> {
             (!groups.is_empty()).then(|| Panel {
                 title: format!(
                     "{}: SUCCESS RATE BY KAPPA QUARTER (%)",
-                    format!("{level:?}").to_uppercase()
+                    level_name(*level).to_uppercase()
                 ),
                 groups,
             })

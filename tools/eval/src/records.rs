@@ -279,14 +279,16 @@ impl RecordsFile {
     }
 
     /// Appends `copy` as a copy of the finished scene `source` (same attempts and summary, the
-    /// summary naming the seed of the round that was run); false if `source` has not finished.
-    pub fn append_copy(&mut self, source: &SceneKey, copy: &SceneKey) -> Result<bool, EvalError> {
-        let Some((attempts, mut summary)) = self.finished_scene(source) else {
-            return Ok(false);
-        };
+    /// summary naming the seed of the round that was run); an error if `source` has not finished.
+    pub fn append_copy(&mut self, source: &SceneKey, copy: &SceneKey) -> Result<(), EvalError> {
+        let (attempts, mut summary) =
+            self.finished_scene(source)
+                .ok_or_else(|| EvalError::Records {
+                    path: self.path.clone(),
+                    reason: format!("no finished round {source:?} to copy as {copy:?}"),
+                })?;
         summary.copied_from_seed = Some(summary.copied_from_seed.unwrap_or(source.seed));
-        self.append_scene(copy, &attempts, &summary)?;
-        Ok(true)
+        self.append_scene(copy, &attempts, &summary)
     }
 
     /// Appends a finished scene: its attempts, then its closing line, in one write.
@@ -349,7 +351,7 @@ pub(crate) mod tests {
         }
     }
 
-    pub(crate) fn attempt(k: u32) -> AttemptRecord {
+    fn attempt(k: u32) -> AttemptRecord {
         AttemptRecord {
             attempt: k,
             objects_before: 3,
@@ -395,6 +397,32 @@ pub(crate) mod tests {
             start_wall_zones: None,
             copied_from_seed: None,
         }
+    }
+
+    #[test]
+    fn a_copy_repeats_a_finished_round_and_names_its_seed() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut f = RecordsFile::open(dir.path()).unwrap();
+        let copy = SceneKey { seed: 8, ..key(0) };
+        // Nothing to copy yet: an error, and nothing written.
+        assert!(f.append_copy(&key(0), &copy).is_err());
+        assert!(!f.is_done(&copy));
+        f.append_scene(&key(0), &[attempt(0), attempt(1)], &summary())
+            .unwrap();
+        f.append_copy(&key(0), &copy).unwrap();
+        let (attempts, copied) = RecordsFile::open(dir.path())
+            .unwrap()
+            .finished_scene(&copy)
+            .unwrap();
+        assert_eq!(attempts, [attempt(0), attempt(1)]);
+        assert_eq!(copied.copied_from_seed, Some(7));
+        assert_eq!(
+            SceneSummary {
+                copied_from_seed: None,
+                ..copied
+            },
+            summary()
+        );
     }
 
     #[test]

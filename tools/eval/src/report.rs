@@ -318,7 +318,7 @@ pub fn summarize(
     }
 }
 
-fn level_name(l: Difficulty) -> &'static str {
+pub(crate) fn level_name(l: Difficulty) -> &'static str {
     match l {
         Difficulty::Train => "Train",
         Difficulty::Easy => "Easy",
