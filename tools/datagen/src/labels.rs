@@ -280,7 +280,11 @@ pub fn check_pose(
 }
 
 /// A unit vector drawn uniformly from the cone of half-angle `half_angle` around unit `axis`.
-fn sample_cone(rng: &mut impl Rng, axis: &Vector3<f32>, half_angle: f32) -> Vector3<f32> {
+pub(crate) fn sample_cone(
+    rng: &mut impl Rng,
+    axis: &Vector3<f32>,
+    half_angle: f32,
+) -> Vector3<f32> {
     let cos_max = half_angle.cos();
     let cos_t: f32 = rng.random_range(cos_max..=1.0);
     let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
@@ -297,18 +301,61 @@ fn sample_cone(rng: &mut impl Rng, axis: &Vector3<f32>, half_angle: f32) -> Vect
 
 /// A candidate pair before the collision tests.
 #[derive(Debug, Clone, Copy)]
-struct Pair {
-    contact: Point3<f32>,
-    baseline: Vector3<f32>,
-    n1: Vector3<f32>,
-    n2: Vector3<f32>,
-    width: f32,
-    quality: f32,
+pub(crate) struct Pair {
+    pub(crate) contact: Point3<f32>,
+    pub(crate) baseline: Vector3<f32>,
+    pub(crate) n1: Vector3<f32>,
+    pub(crate) n2: Vector3<f32>,
+    pub(crate) width: f32,
+    pub(crate) quality: f32,
+}
+
+impl Pair {
+    /// The pair as a label of `object` with every approach still marked colliding.
+    pub(crate) fn label(&self, object: usize) -> GraspLabel {
+        GraspLabel {
+            contact: self.contact,
+            baseline: self.baseline,
+            contact_normal: self.n1,
+            second_normal: self.n2,
+            width: self.width,
+            quality: self.quality,
+            collision_free: [false; N_APPROACHES],
+            object: object as u32,
+        }
+    }
+}
+
+/// A point of `object`'s surface and its outward normal where a random line through its
+/// bounding sphere (`centre`, `radius`) first meets it, cast against this object only; `None`
+/// when the line misses. Reaches every face, the ones the camera barely sees included.
+pub(crate) fn surface_point_on_random_line(
+    scene: &Scene,
+    object: usize,
+    centre: &Vector3<f32>,
+    radius: f32,
+    rng: &mut impl Rng,
+) -> Option<(Point3<f32>, Vector3<f32>)> {
+    let d = sample_cone(rng, &Vector3::z(), std::f32::consts::PI);
+    let helper = if d.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let e1 = d.cross(&helper).normalize();
+    let e2 = d.cross(&e1);
+    let r = radius * rng.random::<f32>().sqrt();
+    let phi: f32 = rng.random_range(0.0..std::f32::consts::TAU);
+    let origin = Point3::from(centre - d * (2.0 * radius) + (e1 * phi.cos() + e2 * phi.sin()) * r);
+    match scene.cast_ray_object(object, &origin, &d, 4.0 * radius, true) {
+        Some((toi, n)) if toi > 0.0 => Some((origin + d * toi, n)),
+        _ => None,
+    }
 }
 
 /// Finds the second contact for first contact `c` (outward normal `n1`) and baseline `b` on
 /// `object`, or `None` if the pair is unusable.
-fn antipodal_pair(
+pub(crate) fn antipodal_pair(
     scene: &Scene,
     object: usize,
     c: &Point3<f32>,
@@ -386,16 +433,7 @@ impl Labeller<'_> {
             self.config,
         )?;
         stats.antipodal_pairs += 1;
-        let mut label = GraspLabel {
-            contact: pair.contact,
-            baseline: pair.baseline,
-            contact_normal: pair.n1,
-            second_normal: pair.n2,
-            width: pair.width,
-            quality: pair.quality,
-            collision_free: [false; N_APPROACHES],
-            object: object as u32,
-        };
+        let mut label = pair.label(object);
         for i in 0..N_APPROACHES {
             stats.poses_checked += 1;
             match check_pose(
@@ -490,30 +528,16 @@ pub fn generate_labels(
                     _ => continue,
                 }
             } else {
-                // A random line through the bounding sphere, cast against this object only.
-                let d = sample_cone(&mut rng, &Vector3::z(), std::f32::consts::PI);
-                let helper = if d.x.abs() < 0.9 {
-                    Vector3::x()
-                } else {
-                    Vector3::y()
-                };
-                let e1 = d.cross(&helper).normalize();
-                let e2 = d.cross(&e1);
-                let r = radius * rng.random::<f32>().sqrt();
-                let phi: f32 = rng.random_range(0.0..std::f32::consts::TAU);
-                let origin = Point3::from(
-                    centre - d * (2.0 * radius) + (e1 * phi.cos() + e2 * phi.sin()) * r,
-                );
-                match scene.cast_ray_object(object, &origin, &d, 4.0 * radius, true) {
-                    Some((toi, n)) if toi > 0.0 => {
+                match surface_point_on_random_line(scene, object, &centre, radius, &mut rng) {
+                    Some((point, n)) => {
                         if n.z.abs() > 0.9
                             && rng.random::<f32>() >= config.steep_normal_keep_probability
                         {
                             continue;
                         }
-                        (origin + d * toi, n)
+                        (point, n)
                     }
-                    _ => continue,
+                    None => continue,
                 }
             };
             let (point, normal) = hit;

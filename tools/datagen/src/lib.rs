@@ -10,6 +10,7 @@
 pub mod cli;
 pub mod dataset;
 pub mod generate;
+pub mod graspability;
 pub mod inspect;
 pub mod labels;
 pub mod physics_check;
@@ -21,6 +22,10 @@ pub use dataset::{read_scene, write_scene, Manifest, SceneMeta, SceneRecord};
 pub use generate::{
     derive_seed, generate_record, generate_record_with_recipe, Difficulty, GenerationConfig,
     ObjectCounts,
+};
+pub use graspability::{
+    graspability, visible_pixels_per_object, BlockedPoses, Graspability, GraspabilityConfig,
+    GraspabilityVerdict,
 };
 pub use labels::{generate_labels, GraspLabel, LabelConfig, LabelSet, LabelStats};
 pub use physics_check::{check_labels_in_physics, FailedLabels, LabelPhysicsCheck};

@@ -8,6 +8,8 @@
 //!   list).
 //! - [`records`]: the resumable run directory (`run.json`, `records.jsonl`, one JSON line per
 //!   attempt and per finished scene).
+//! - [`leftovers`]: why each object a round leaves has no grasp (its graspability on the final
+//!   scene), and the report's tables of it.
 //! - [`report`] and [`plot`]: SR/CR per level and detector as Markdown, JSON and a PNG chart.
 //! - [`cli`]: `psgrasp eval` ([`EvalArgs`], [`run_eval`]): detectors × levels × seeds × scenes in
 //!   parallel, resumable, with progress and the reports at the end.
@@ -19,6 +21,7 @@
 pub mod cli;
 pub mod detectors;
 pub mod kappa;
+pub mod leftovers;
 pub mod oracle;
 pub mod plot;
 pub mod protocol;

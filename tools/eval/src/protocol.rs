@@ -21,7 +21,7 @@
 use crate::oracle::{label_holds_in_isolation, oracle_configurations, OracleConfig};
 use crate::EvalError;
 use nalgebra::Point3;
-use psgrasp_datagen::{derive_seed, Difficulty, GenerationConfig};
+use psgrasp_datagen::{derive_seed, Difficulty, GenerationConfig, Graspability};
 use psgrasp_inference::InferenceBackend;
 use psgrasp_perception::{CellConfig, DetectionTimings, Perception, Proposer};
 use psgrasp_selection::RejectionCounts;
@@ -314,6 +314,10 @@ pub struct RemainingObject {
     /// records written before 2026-12-04).
     #[serde(default)]
     pub start_zone: Option<WallZone>,
+    /// Why it has no grasp in the final scene ([`crate::leftovers`]; absent in records written
+    /// before 2026-12-05).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub graspability: Option<Graspability>,
 }
 
 impl RemainingObject {
@@ -328,27 +332,31 @@ impl RemainingObject {
     /// Every object of `scene` with its wall zone there (the round's start, for
     /// [`RemainingObject::match_start_zones`]).
     pub fn with_start_zones(scene: &Scene) -> Vec<(Self, WallZone)> {
-        let c = scene.bin().floor_center;
         (0..scene.object_count())
-            .filter_map(|i| {
-                let (lo, hi) = scene.object_aabb(i)?;
-                let [gap_x, gap_y] = scene.object_wall_gaps(i)?;
-                let o = &scene.objects()[i];
-                let object = Self {
-                    name: o.spec.name.clone(),
-                    kind: format!("{:?}", o.spec.kind).to_lowercase(),
-                    extent_m: (hi - lo).into(),
-                    center_m: [
-                        0.5 * (lo.x + hi.x) - c.x,
-                        0.5 * (lo.y + hi.y) - c.y,
-                        0.5 * (lo.z + hi.z) - c.z,
-                    ],
-                    wall_gap_m: gap_x.min(gap_y),
-                    start_zone: None,
-                };
-                Some((object, WallZone::of_gaps(gap_x, gap_y)))
-            })
+            .filter_map(|i| Self::of_object(scene, i))
             .collect()
+    }
+
+    /// Object `i` of `scene` and its wall zone (`None` for an index that is not an object).
+    pub fn of_object(scene: &Scene, i: usize) -> Option<(Self, WallZone)> {
+        let c = scene.bin().floor_center;
+        let (lo, hi) = scene.object_aabb(i)?;
+        let [gap_x, gap_y] = scene.object_wall_gaps(i)?;
+        let o = &scene.objects()[i];
+        let object = Self {
+            name: o.spec.name.clone(),
+            kind: format!("{:?}", o.spec.kind).to_lowercase(),
+            extent_m: (hi - lo).into(),
+            center_m: [
+                0.5 * (lo.x + hi.x) - c.x,
+                0.5 * (lo.y + hi.y) - c.y,
+                0.5 * (lo.z + hi.z) - c.z,
+            ],
+            wall_gap_m: gap_x.min(gap_y),
+            start_zone: None,
+            graspability: None,
+        };
+        Some((object, WallZone::of_gaps(gap_x, gap_y)))
     }
 
     /// Sets each object's `start_zone` from the round's start ([`Self::with_start_zones`] of its
@@ -609,11 +617,7 @@ pub fn clear_scene(
         configurations,
         scene_ms: ms(started),
         final_rejections,
-        remaining_objects: {
-            let mut left = RemainingObject::of_scene(&scene);
-            RemainingObject::match_start_zones(&mut left, &start);
-            left
-        },
+        remaining_objects: crate::leftovers::remaining_objects(&scene, &camera, &start, cfg),
         start_wall_zones: Some(start_wall_zones),
         copied_from_seed: None,
     };

@@ -8,6 +8,7 @@
 //! Detection time is fusion + inference + selection per frame; "grasps/s" are successful grasps
 //! per second of detection time.
 use crate::kappa::KappaBins;
+use crate::leftovers::LeftoverVerdicts;
 use crate::plot::{BarChart, Panel};
 use crate::protocol::{AttemptRecord, TouchedThing};
 use crate::records::{RecordLine, SceneKey};
@@ -88,6 +89,9 @@ pub struct CellMetrics {
     /// that carry κ).
     #[serde(default)]
     pub kappa: Option<KappaBins>,
+    /// Why the objects left have no grasp (records that carry the diagnosis).
+    #[serde(default)]
+    pub leftovers: LeftoverVerdicts,
 }
 
 /// A pick whose TCP lies farther than this outside the object it aimed at missed it, metres.
@@ -238,6 +242,7 @@ pub fn summarize(
                 started_by_zone: [0; 3],
                 left_by_start_zone: [0; 3],
                 kappa: None,
+                leftovers: LeftoverVerdicts::default(),
             };
             let mut kappas: Vec<(f32, bool)> = Vec::new();
             let (mut frames, mut det_ms, mut configs, mut exec_ms) = (0u64, 0.0, 0usize, 0.0);
@@ -257,6 +262,7 @@ pub fn summarize(
                         for o in &s.remaining_objects {
                             *c.left_by_kind.entry(o.kind.clone()).or_default() += 1;
                             c.left_near_wall += usize::from(o.wall_gap_m < NEAR_WALL_M);
+                            c.leftovers.add(o);
                         }
                         if let Some(z) = s.start_wall_zones {
                             let by_zone = [
@@ -470,6 +476,20 @@ impl Summary {
                 );
             }
         }
+        let leftover_rows: Vec<_> = self
+            .cells
+            .iter()
+            .map(|c| {
+                let left: usize = c.left_by_kind.values().sum();
+                (
+                    self.label(&c.detector),
+                    level_name(c.level),
+                    left,
+                    &c.leftovers,
+                )
+            })
+            .collect();
+        s.push_str(&crate::leftovers::markdown(&leftover_rows));
         if self.cells.iter().any(|c| c.kappa.is_some()) {
             let _ = writeln!(
                 s,
@@ -607,6 +627,7 @@ mod tests {
             center_m: [0.0; 3],
             wall_gap_m,
             start_zone: None,
+            graspability: None,
         };
         let mut a = scene(0, 0, 4, 2, 1);
         let mut b = scene(0, 1, 3, 1, 1);
@@ -648,6 +669,7 @@ mod tests {
             center_m: [0.0; 3],
             wall_gap_m: 0.0,
             start_zone: Some(zone),
+            graspability: None,
         };
         // Scene a: 10 objects, 4 by a wall of which 1 in a corner; left: 1 interior, 2 by a
         // wall, the corner one. Scene b: 5 objects, all interior, 1 left.

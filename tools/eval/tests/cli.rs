@@ -78,6 +78,23 @@ fn two_scene_eval_writes_reports_and_resumes() {
     let md = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(md.contains("| Analytic antipodal (GPD-style) |"), "{md}");
     assert!(md.contains("2 / 2"), "{md}");
+    // Every object a round left carries why it has no grasp, and the report counts them.
+    let left: Vec<_> = RecordsFile::open(&out)
+        .unwrap()
+        .lines()
+        .iter()
+        .filter_map(|l| match l {
+            RecordLine::Scene { summary, .. } => Some(summary.remaining_objects.clone()),
+            _ => None,
+        })
+        .flatten()
+        .collect();
+    assert!(
+        !left.is_empty(),
+        "the analytic detector leaves objects in medium"
+    );
+    assert!(left.iter().all(|o| o.graspability.is_some()));
+    assert!(md.contains("## Why the objects left have no grasp"), "{md}");
     // A third run has nothing left to do and changes no record.
     let bytes = std::fs::read(out.join(RECORDS_FILE)).unwrap();
     run_eval(&args(&out, 2, 1)).unwrap();

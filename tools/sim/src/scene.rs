@@ -439,6 +439,26 @@ impl Scene {
         out.into_iter().map(|i| self.target_of(i)).collect()
     }
 
+    /// The parts of the bin the oriented box intersects, as indices into
+    /// [`BinModel::boxes`]: 0 the floor, 1–4 the side walls.
+    pub fn box_bin_parts(&self, b: &OrientedBox) -> Vec<usize> {
+        let cuboid = Cuboid::new(vec_to_glam(&b.half_extents));
+        let pose = pose_to_glam(&b.parent_from_box);
+        let n = self.object_count();
+        (0..self.shapes.len() - n)
+            .filter(|&part| {
+                let leaf = n + part;
+                intersection_test(
+                    &pose,
+                    &cuboid,
+                    &self.poses[leaf],
+                    self.shapes[leaf].as_ref(),
+                )
+                .is_ok_and(|r| r.intersecting)
+            })
+            .collect()
+    }
+
     /// Renders the clean depth image (metres along the optical axis, 0 where nothing is hit).
     pub fn render_depth(&self, camera: &CameraModel) -> DepthImage {
         self.render(camera).depth
