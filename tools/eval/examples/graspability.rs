@@ -2,6 +2,8 @@
 //! pick), with the time the diagnosis takes per object: what `psgrasp eval` records for the
 //! objects a round leaves.
 //! `cargo run --release -p psgrasp-eval --example graspability -- [LEVEL] [SCENES]`
+// The label helpers of `common` serve the other examples.
+#[allow(dead_code)]
 mod common;
 
 use psgrasp_datagen::Difficulty;
