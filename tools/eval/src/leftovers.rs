@@ -67,7 +67,7 @@ pub struct LeftoverVerdicts {
     pub diagnosed: usize,
     /// Of those, by verdict (snake-case name).
     pub by_verdict: BTreeMap<GraspabilityVerdict, usize>,
-    /// Of those, by `kind/start zone` and verdict.
+    /// Of those, by `kind / start zone` (meshes as `mesh (library)`) and verdict.
     pub by_kind_and_start: BTreeMap<String, BTreeMap<GraspabilityVerdict, usize>>,
 }
 
@@ -85,9 +85,14 @@ impl LeftoverVerdicts {
             Some(WallZone::Corner) => "in a corner",
             None => "start unknown",
         };
+        // Meshes by their library (`ycb`, `random_urdfs`): the object names' prefix.
+        let kind = match object.name.split_once('/') {
+            Some((library, _)) if object.kind == "mesh" => format!("mesh ({library})"),
+            _ => object.kind.clone(),
+        };
         *self
             .by_kind_and_start
-            .entry(format!("{} / {zone}", object.kind))
+            .entry(format!("{kind} / {zone}"))
             .or_default()
             .entry(g.verdict)
             .or_default() += 1;
@@ -205,21 +210,28 @@ mod tests {
 
         let mut cell = LeftoverVerdicts::default();
         left.iter().for_each(|o| cell.add(o));
+        let mut urdf = left[0].clone();
+        (urdf.name, urdf.kind) = ("random_urdfs/254".into(), "mesh".into());
+        cell.add(&urdf);
         let mut undiagnosed = left[0].clone();
         undiagnosed.graspability = None;
         cell.add(&undiagnosed);
-        assert_eq!(cell.diagnosed, 3);
+        assert_eq!(cell.diagnosed, 4);
         assert_eq!(cell.count(V::Wall), 1);
         assert_eq!(
             cell.by_kind_and_start.get("box / in a corner").unwrap()[&V::Wall],
             1
         );
-        let md = markdown(&[("Oracle", "Easy", 4, &cell)]);
+        let md = markdown(&[("Oracle", "Easy", 5, &cell)]);
         assert!(
-            md.contains("| Oracle | Easy | 4 (3) | 1 | 0 | 0 | 1 | 1 | 0 | 0 | 0 |"),
+            md.contains("| Oracle | Easy | 5 (4) | 2 | 0 | 0 | 1 | 1 | 0 | 0 | 0 |"),
             "{md}"
         );
         assert!(md.contains("box / in a corner: 1 (wall 1)"), "{md}");
+        assert!(
+            md.contains("mesh (random_urdfs) / interior: 1 (graspable 1)"),
+            "{md}"
+        );
         // Cells without a diagnosis (older records) leave the section out.
         let empty = LeftoverVerdicts::default();
         assert!(markdown(&[("Oracle", "Easy", 4, &empty)]).is_empty());
