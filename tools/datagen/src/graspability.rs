@@ -124,21 +124,22 @@ fn pose_blockers(
     let opening = (grasp.width + 2.0 * config.approach_clearance_m).min(gripper.max_opening_m);
     let mut blockers = 0u8;
     let mut add = |b: &psgrasp_geometry::OrientedBox, skip_self: bool| {
+        let mut bin = false;
         for target in scene.box_colliders(b) {
-            blockers |= match target {
+            match target {
                 HitTarget::Object(i) if i == object => {
-                    if skip_self {
-                        0
-                    } else {
-                        ITSELF
+                    if !skip_self {
+                        blockers |= ITSELF;
                     }
                 }
-                HitTarget::Object(_) => OTHER,
-                HitTarget::Bin => scene
-                    .box_bin_parts(b)
-                    .iter()
-                    .fold(0, |acc, &part| acc | if part == 0 { FLOOR } else { WALL }),
-            };
+                HitTarget::Object(_) => blockers |= OTHER,
+                HitTarget::Bin => bin = true,
+            }
+        }
+        if bin {
+            for part in scene.box_bin_parts(b) {
+                blockers |= if part == 0 { FLOOR } else { WALL };
+            }
         }
     };
     for b in gripper.boxes(&pose, opening).iter() {
