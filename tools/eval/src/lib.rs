@@ -10,6 +10,7 @@
 //!   attempt and per finished scene).
 //! - [`leftovers`]: why each object a round leaves has no grasp (its graspability on the final
 //!   scene), and the report's tables of it.
+//! - [`paired`]: CR differences between detectors on the same rounds, with standard errors.
 //! - [`report`] and [`plot`]: SR/CR per level and detector as Markdown, JSON and a PNG chart.
 //! - [`cli`]: `psgrasp eval` ([`EvalArgs`], [`run_eval`]): detectors × levels × seeds × scenes in
 //!   parallel, resumable, with progress and the reports at the end.
@@ -23,6 +24,7 @@ pub mod detectors;
 pub mod kappa;
 pub mod leftovers;
 pub mod oracle;
+pub mod paired;
 pub mod plot;
 pub mod protocol;
 pub mod records;

@@ -9,6 +9,7 @@
 //! per second of detection time.
 use crate::kappa::KappaBins;
 use crate::leftovers::LeftoverVerdicts;
+use crate::paired::{paired_differences, PairedDifference};
 use crate::plot::{BarChart, Panel};
 use crate::protocol::{AttemptRecord, TouchedThing};
 use crate::records::{RecordLine, SceneKey};
@@ -134,6 +135,9 @@ pub struct Summary {
     pub levels: Vec<Difficulty>,
     /// One cell per detector and level (detector-major).
     pub cells: Vec<CellMetrics>,
+    /// CR of each detector minus the one listed before it, on the same rounds.
+    #[serde(default)]
+    pub paired: Vec<PairedDifference>,
 }
 
 fn snake<T: Serialize>(v: &T) -> String {
@@ -144,7 +148,7 @@ fn snake<T: Serialize>(v: &T) -> String {
 }
 
 /// Standard error of the ratio `Σ num / Σ den` over units (delta method).
-fn ratio_se(num: &[f64], den: &[f64]) -> f64 {
+pub(crate) fn ratio_se(num: &[f64], den: &[f64]) -> f64 {
     let n = num.len();
     let total: f64 = den.iter().sum();
     if n < 2 || total <= 0.0 {
@@ -321,6 +325,7 @@ pub fn summarize(
         detectors: detectors.to_vec(),
         levels: levels.to_vec(),
         cells,
+        paired: paired_differences(lines, detectors, levels, seeds, scenes),
     }
 }
 
@@ -390,6 +395,7 @@ impl Summary {
                  change them, so their spread over seeds is 0)."
             );
         }
+        s.push_str(&crate::paired::markdown(&self.paired, |d| self.label(d)));
         let _ = writeln!(s, "\n## Per level\n");
         let _ = writeln!(
             s,
