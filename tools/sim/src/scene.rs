@@ -521,6 +521,25 @@ mod tests {
     use crate::objects::{ObjectKind, Part, Primitive};
     use psgrasp_geometry::CameraIntrinsics;
 
+    #[test]
+    fn a_box_names_the_bin_parts_it_crosses() {
+        let scene = cube_scene(0.02);
+        let c = scene.bin().floor_center;
+        let [lx, ly, _] = scene.bin().inner_size_m;
+        let at = |x: f32, y: f32, z: f32| OrientedBox {
+            parent_from_box: Isometry3::translation(c.x + x, c.y + y, c.z + z),
+            half_extents: Vector3::new(0.01, 0.01, 0.01),
+        };
+        // In the middle above the cube: nothing; through the floor: the floor; through the −x
+        // wall: wall 1; through the +y wall at the floor: the floor and wall 4.
+        assert!(scene.box_bin_parts(&at(0.1, 0.0, 0.1)).is_empty());
+        assert_eq!(scene.box_bin_parts(&at(0.1, 0.0, 0.0)), [0]);
+        assert_eq!(scene.box_bin_parts(&at(-0.5 * lx, 0.0, 0.1)), [1]);
+        assert_eq!(scene.box_bin_parts(&at(0.0, 0.5 * ly, 0.0)), [0, 4]);
+        // The cube itself is not a bin part.
+        assert!(scene.box_bin_parts(&at(0.0, 0.0, 0.02)).is_empty());
+    }
+
     fn cube_scene(half: f32) -> Scene {
         let bin = BinModel::default();
         let spec = ObjectSpec {
