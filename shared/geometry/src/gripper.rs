@@ -30,7 +30,7 @@ pub struct GripperModel {
 impl Default for GripperModel {
     /// The hand of the default gripper file ([`crate::DEFAULT_GRIPPER`], `config/grippers/`):
     /// the Franka hand (80 mm max opening, fingers 21×26×54 mm, hand 204×63×92 mm) with the
-    /// fingertips 15 mm past the TCP, the hand the shipped models were trained with.
+    /// fingertips 9.5 mm past the TCP, the hand the shipped models were trained with.
     fn default() -> Self {
         crate::grippers::default_gripper()
     }

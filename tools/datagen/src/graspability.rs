@@ -7,7 +7,7 @@
 //! another object, the object itself. `psgrasp eval` runs it on the objects a round leaves, so a
 //! ceiling below 100 % can be explained object by object.
 use crate::labels::{
-    antipodal_pair, sample_cone, surface_point_on_random_line, GraspLabel, LabelConfig,
+    antipodal_pair, lifted_pose, sample_cone, surface_point_on_random_line, GraspLabel, LabelConfig,
 };
 use psgrasp_geometry::{GripperModel, N_APPROACHES};
 use psgrasp_sim::{HitTarget, Scene};
@@ -119,7 +119,7 @@ fn pose_blockers(
     config: &LabelConfig,
 ) -> u8 {
     let grasp = label.grasp(approach);
-    let pose = grasp.workspace_from_gripper();
+    let pose = lifted_pose(&grasp, config.tcp_lift_m);
     let object = label.object as usize;
     let opening = (grasp.width + 2.0 * config.approach_clearance_m).min(gripper.max_opening_m);
     let mut blockers = 0u8;

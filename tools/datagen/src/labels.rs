@@ -8,7 +8,7 @@
 //! open gripper (palm + two fingers, opened `width + 2·approach_clearance`) at each of the 18
 //! approach vectors against the whole scene (every object, the grasped one included, and the
 //! bin). A grasp configuration is stored when at least one approach is collision-free.
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 use psgrasp_geometry::{
     antipodal_quality, ContactGrasp, GraspConfiguration, GripperModel, N_APPROACHES,
 };
@@ -55,6 +55,15 @@ pub struct LabelConfig {
     /// Also store each pair seen from its second contact (`c₂`, `−b`); its collision flags are the
     /// first one's reversed (same gripper poses, turned by π about the approach).
     pub store_symmetric: bool,
+    /// The gripper poses are tested with the tool centre point raised this far back along the
+    /// approach from the contacts' midpoint (m): the contacts then meet the pads below their
+    /// centre. 0 (the paper's grasp frame) is the default and is not written to manifests.
+    #[serde(skip_serializing_if = "is_zero_f32")]
+    pub tcp_lift_m: f32,
+}
+
+fn is_zero_f32(x: &f32) -> bool {
+    *x == 0.0
 }
 
 impl Default for LabelConfig {
@@ -74,6 +83,7 @@ impl Default for LabelConfig {
             min_visible_pixels: 20,
             check_closing_region: true,
             store_symmetric: true,
+            tcp_lift_m: 0.0,
         }
     }
 }
@@ -259,7 +269,7 @@ pub fn check_pose(
     object: usize,
     config: &LabelConfig,
 ) -> PoseCheck {
-    let pose = grasp.workspace_from_gripper();
+    let pose = lifted_pose(grasp, config.tcp_lift_m);
     let opening = (grasp.width + 2.0 * config.approach_clearance_m).min(gripper.max_opening_m);
     for (k, b) in gripper.boxes(&pose, opening).iter().enumerate() {
         if scene.box_collides(b, None) {
@@ -277,6 +287,11 @@ pub fn check_pose(
         }
     }
     PoseCheck::Free
+}
+
+/// The gripper pose of `grasp` with the tool centre point raised `lift_m` back along the approach.
+pub fn lifted_pose(grasp: &ContactGrasp, lift_m: f32) -> Isometry3<f32> {
+    grasp.workspace_from_gripper() * Translation3::new(0.0, 0.0, -lift_m)
 }
 
 /// A unit vector drawn uniformly from the cone of half-angle `half_angle` around unit `axis`.

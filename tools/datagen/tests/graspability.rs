@@ -91,3 +91,33 @@ fn the_verdict_is_deterministic_for_a_seed_and_hidden_objects_are_named() {
     assert_eq!(hidden.verdict, GraspabilityVerdict::Hidden);
     assert_eq!((hidden.free, hidden.poses), (a.free, a.poses));
 }
+
+#[test]
+fn a_low_bar_blocked_by_the_floor_is_reached_with_the_tool_centre_point_raised() {
+    // A 60 × 14 × 8 mm bar lying flat: with the contacts at the tool centre point the fingertips
+    // (9.5 mm beyond it) end under the floor for every pair. Raised along the approach, the
+    // hand clears the floor for the pairs across the bar (their baselines tilted in the friction
+    // cone put the lower finger deeper, so it takes more than the 8 mm the bar is thick).
+    let scene = boxes_on_floor(&[([0.03, 0.007, 0.004], [0.0, 0.0])]);
+    let at = |lift_m: f32| {
+        graspability(
+            &scene,
+            &GripperModel::default(),
+            &LabelConfig {
+                tcp_lift_m: lift_m,
+                ..LabelConfig::default()
+            },
+            0,
+            1000,
+            &GraspabilityConfig::default(),
+            11,
+        )
+    };
+    let flush = at(0.0);
+    assert_eq!(flush.verdict, GraspabilityVerdict::Floor, "{flush:?}");
+    assert_eq!(flush.free, 0);
+    let raised = at(0.02);
+    assert_eq!(raised.verdict, GraspabilityVerdict::Graspable, "{raised:?}");
+    assert_eq!(raised.antipodal_pairs, flush.antipodal_pairs);
+    assert!(raised.free > 10, "{raised:?}");
+}

@@ -222,3 +222,49 @@ fn isolated_sphere_is_grasped_across_its_equator() {
         .iter()
         .any(|l| l.baseline.z.abs() < 0.3 && (l.collision_free[8] || l.collision_free[9])));
 }
+
+#[test]
+fn a_raised_tool_centre_point_labels_a_low_bar_the_contacts_frame_cannot() {
+    // A 60 × 14 × 8 mm bar lying flat: at the contacts' midpoint the fingertips, 9.5 mm beyond
+    // it, are under the floor for every pair; raised 20 mm back along the approach, the pairs
+    // across the bar get free approaches, and each such pose keeps its fingertips above the floor.
+    let scene = single_object_scene(
+        Primitive::Cuboid {
+            half_extents: [0.03, 0.007, 0.004],
+        },
+        0.004,
+    );
+    let flush = LabelConfig::quick();
+    assert!(labels_for(&scene, &flush, 5).is_empty());
+    let raised = LabelConfig {
+        tcp_lift_m: 0.02,
+        ..LabelConfig::quick()
+    };
+    let labels = labels_for(&scene, &raised, 5);
+    assert!(!labels.is_empty());
+    let gripper = GripperModel::default();
+    let floor_top = scene.bin().floor_center.z;
+    for l in &labels {
+        for i in (0..N_APPROACHES).filter(|&i| l.collision_free[i]) {
+            let pose = psgrasp_datagen::labels::lifted_pose(&l.grasp(i), raised.tcp_lift_m);
+            let tip = pose * Point3::new(0.0, 0.0, gripper.tip_beyond_tcp_m);
+            assert!(tip.z > floor_top, "fingertip {tip:?} under the floor");
+            assert_ne!(
+                check_pose(&scene, &gripper, &l.grasp(i), l.object as usize, &flush),
+                PoseCheck::Free
+            );
+        }
+    }
+}
+
+#[test]
+fn the_default_label_config_writes_no_lift_so_old_manifests_keep_their_hashes() {
+    let text = serde_json::to_string(&LabelConfig::default()).unwrap();
+    assert!(!text.contains("tcp_lift_m"), "{text}");
+    let raised = LabelConfig {
+        tcp_lift_m: 0.006,
+        ..LabelConfig::default()
+    };
+    let back: LabelConfig = serde_json::from_str(&serde_json::to_string(&raised).unwrap()).unwrap();
+    assert_eq!(back, raised);
+}
