@@ -51,6 +51,12 @@ impl ContactGrasp {
         )
     }
 
+    /// [`Self::workspace_from_gripper`] with the tool centre point raised `lift_m` back along the
+    /// approach: the contacts then meet the pads `lift_m` below their centre.
+    pub fn workspace_from_gripper_lifted(&self, lift_m: f32) -> Isometry3<f32> {
+        self.workspace_from_gripper() * Translation3::new(0.0, 0.0, -lift_m)
+    }
+
     /// The approach point `t`: the centre of the finger bases, `tcp − a·d`, where `d` is the
     /// distance from the tool centre point to the palm face of `gripper`.
     pub fn approach_point(&self, gripper: &GripperModel) -> Point3<f32> {
@@ -160,6 +166,29 @@ pub fn approach_vectors(b: &Vector3<f32>) -> [Vector3<f32>; N_APPROACHES] {
 pub fn antipodal_quality(baseline: &Vector3<f32>, n1: &Vector3<f32>, n2: &Vector3<f32>) -> f32 {
     let b = baseline.normalize();
     (b.dot(&n1.normalize()).abs() * b.dot(&n2.normalize()).abs()).clamp(0.0, 1.0)
+}
+
+/// Most tool-centre-point lifts a configuration may list ([`check_tcp_lifts`]).
+pub const MAX_TCP_LIFTS: usize = 8;
+
+/// The lifts a grasp pose is tried at, in order: the contacts' own frame (0) first, then
+/// `extra_lifts_m` (a `tcp_lifts_m` setting of labels or selection).
+pub fn tcp_lifts(extra_lifts_m: &[f32]) -> impl Iterator<Item = f32> + '_ {
+    std::iter::once(0.0).chain(extra_lifts_m.iter().copied())
+}
+
+/// Checks a `tcp_lifts_m` setting: at most [`MAX_TCP_LIFTS`] values, each finite, in
+/// `(0, 0.05]` m and larger than the one before.
+pub fn check_tcp_lifts(lifts_m: &[f32], field: &'static str) -> Result<(), crate::OutOfRange> {
+    let in_range = lifts_m
+        .iter()
+        .all(|v| v.is_finite() && *v > 0.0 && *v <= 0.05);
+    let increasing = lifts_m.windows(2).all(|w| w[1] > w[0]);
+    crate::check_setting(
+        lifts_m.len() <= MAX_TCP_LIFTS && in_range && increasing,
+        field,
+        "at most 8 increasing values in (0, 0.05] m",
+    )
 }
 
 #[cfg(test)]

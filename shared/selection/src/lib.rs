@@ -35,8 +35,8 @@ use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 use psgrasp_collision::{CollisionError, OccupancyConfig, OccupancyGrid};
 use psgrasp_fusion::NormalGridView;
 use psgrasp_geometry::{
-    check_setting, BinModel, GraspConfiguration, GripperModel, HandClearance, OrientedBox,
-    N_APPROACHES,
+    check_setting, check_tcp_lifts, tcp_lifts, BinModel, GraspConfiguration, GripperModel,
+    HandClearance, OrientedBox, N_APPROACHES,
 };
 use serde::{Deserialize, Serialize};
 
@@ -103,6 +103,13 @@ pub struct SelectionConfig {
     pub pick_spacing_m: f32,
     /// Which picks come first: `quality` (the paper's), `topmost`, or `centre-first`.
     pub pick_order: PickOrder,
+    /// An approach whose grasp pose, pre-grasp or path fails the collision checks with the tool
+    /// centre point at the contacts' midpoint (the paper's grasp frame) is tried again with it
+    /// raised these distances back along the approach, in order, metres: the contacts then meet
+    /// the pads below their centre (a real pad holds anywhere along its length; keep the lifts
+    /// within half the pad's length). The pick is the first lift that passes. Empty (default):
+    /// the paper's frame only.
+    pub tcp_lifts_m: Vec<f32>,
 }
 
 impl Default for SelectionConfig {
@@ -122,6 +129,7 @@ impl Default for SelectionConfig {
             occupancy: OccupancyConfig::default(),
             pick_spacing_m: 0.05,
             pick_order: PickOrder::Quality,
+            tcp_lifts_m: Vec::new(),
         }
     }
 }
@@ -174,6 +182,7 @@ impl SelectionConfig {
             "must lie in [0, 1) m",
         )?;
         c.occupancy.validate()?;
+        check_tcp_lifts(&c.tcp_lifts_m, "tcp_lifts_m")?;
         Ok(())
     }
 }
@@ -427,12 +436,43 @@ impl<'a> GraspChecker<'a> {
         if -grasp.approach.z < self.cos_max_tilt - 1e-6 {
             return Err(RejectionReason::Tilt);
         }
-        let pose = grasp.workspace_from_gripper();
         let opening = self
             .cfg
             .clearance
             .opening_m(c.width, self.gripper.max_opening_m);
-        if let Some(reason) = self.gripper_collides(&pose, opening) {
+        let mut unlifted_reason = None;
+        for lift in tcp_lifts(&self.cfg.tcp_lifts_m) {
+            let pose = grasp.workspace_from_gripper_lifted(lift);
+            match self.check_pose_and_path(&pose, opening) {
+                Ok(pregrasp) => {
+                    return Ok(SelectedGrasp {
+                        workspace_from_gripper: pose,
+                        pregrasp,
+                        pregrasp_distance_m: self.cfg.clearance.pregrasp_distance_m,
+                        width: c.width,
+                        opening_m: opening,
+                        quality: c.quality,
+                        collision_score: score,
+                        configuration_index,
+                        approach_index,
+                    })
+                }
+                Err(reason) => {
+                    unlifted_reason.get_or_insert(reason);
+                }
+            }
+        }
+        Err(unlifted_reason.unwrap_or(RejectionReason::InvalidConfiguration))
+    }
+
+    /// The grasp pose, its pre-grasp backed off along −approach and the poses between them
+    /// against the bin and the scene; the pre-grasp pose when all are free.
+    fn check_pose_and_path(
+        &self,
+        pose: &Isometry3<f32>,
+        opening: f32,
+    ) -> Result<Isometry3<f32>, RejectionReason> {
+        if let Some(reason) = self.gripper_collides(pose, opening) {
             return Err(reason);
         }
         let approach: Vector3<f32> = pose.rotation * Vector3::z();
@@ -456,17 +496,7 @@ impl<'a> GraspChecker<'a> {
                 return Err(RejectionReason::ApproachPathCollision);
             }
         }
-        Ok(SelectedGrasp {
-            workspace_from_gripper: pose,
-            pregrasp,
-            pregrasp_distance_m: self.cfg.clearance.pregrasp_distance_m,
-            width: c.width,
-            opening_m: opening,
-            quality: c.quality,
-            collision_score: score,
-            configuration_index,
-            approach_index,
-        })
+        Ok(pregrasp)
     }
 }
 

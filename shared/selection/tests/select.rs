@@ -504,3 +504,69 @@ fn the_pick_order_policy_decides_which_pick_comes_first() {
     assert_eq!(first(PickOrder::Topmost), vec![1, 2, 0]);
     assert_eq!(first(PickOrder::CentreFirst), vec![0, 1, 2]);
 }
+
+#[test]
+fn a_grasp_low_over_the_floor_is_picked_with_the_tool_centre_point_raised() {
+    // Contacts 6 mm above the floor in the middle of the bin: with the tool centre point there,
+    // the fingertips (9.5 mm beyond it) reach under the floor, so every approach fails.
+    let grid = scene(&[]);
+    let low = config([0.268, 0.288, floor_z() + 0.006], 0.95, &DOWN, 1.0);
+    let flush = SelectionConfig::default();
+    let sel = run(&[low], &grid, &flush);
+    assert!(sel.picks.is_empty());
+    assert_eq!(sel.rejected.bin_collision, 2, "{:?}", sel.rejected);
+
+    // Tried again raised: the first lift that clears the floor (and its margins) is the pick,
+    // its pose the unlifted one moved back along the approach by that lift.
+    let lifts = vec![0.004, 0.008, 0.012, 0.016, 0.02];
+    let raised = SelectionConfig {
+        tcp_lifts_m: lifts.clone(),
+        ..SelectionConfig::default()
+    };
+    let sel = run(&[low], &grid, &raised);
+    assert_eq!(sel.picks.len(), 1, "{:?}", sel.rejected);
+    let pick = sel.picks[0];
+    let grasp = low.grasp(pick.approach_index);
+    let unlifted = grasp.workspace_from_gripper().translation.vector;
+    let moved = pick.workspace_from_gripper.translation.vector - unlifted;
+    let lift = moved.norm();
+    assert!(
+        moved.dot(&grasp.approach) < 0.0,
+        "moved {moved:?} not back along the approach"
+    );
+    let k = lifts
+        .iter()
+        .position(|l| (l - lift).abs() < 1e-5)
+        .unwrap_or_else(|| panic!("lift {lift} is not one of {lifts:?}"));
+    let gripper = GripperModel::default();
+    let tip = pick.workspace_from_gripper * Point3::new(0.0, 0.0, gripper.tip_beyond_tcp_m);
+    assert!(tip.z > floor_z(), "fingertip {tip:?} under the floor");
+    // The lifts before it do not clear: the smallest lift that works is taken.
+    let fewer = SelectionConfig {
+        tcp_lifts_m: lifts[..k].to_vec(),
+        ..SelectionConfig::default()
+    };
+    assert!(run(&[low], &grid, &fewer).picks.is_empty());
+}
+
+#[test]
+fn tcp_lifts_outside_their_range_are_refused_by_name() {
+    for lifts in [
+        vec![0.0],
+        vec![0.01, 0.005],
+        vec![0.06],
+        vec![f32::NAN],
+        vec![0.001; 9],
+    ] {
+        let cfg = SelectionConfig {
+            tcp_lifts_m: lifts.clone(),
+            ..SelectionConfig::default()
+        };
+        match cfg.validate() {
+            Err(SelectionError::InvalidConfig { field, .. }) => {
+                assert_eq!(field, "tcp_lifts_m", "{lifts:?}")
+            }
+            other => panic!("{lifts:?} accepted: {other:?}"),
+        }
+    }
+}

@@ -170,10 +170,13 @@ fn load_config(args: &DatagenArgs) -> anyhow::Result<GenerationConfig> {
         None => GenerationConfig::default(),
     };
     if args.quick {
+        // Less sampling, the same poses: the lifts of the tool centre point stay.
         config.labels = LabelConfig {
+            tcp_lifts_m: config.labels.tcp_lifts_m.clone(),
             ..LabelConfig::quick()
         };
     }
+    config.labels.validate()?;
     Ok(config)
 }
 

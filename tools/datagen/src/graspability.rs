@@ -7,9 +7,9 @@
 //! another object, the object itself. `psgrasp eval` runs it on the objects a round leaves, so a
 //! ceiling below 100 % can be explained object by object.
 use crate::labels::{
-    antipodal_pair, lifted_pose, sample_cone, surface_point_on_random_line, GraspLabel, LabelConfig,
+    antipodal_pair, sample_cone, surface_point_on_random_line, GraspLabel, LabelConfig,
 };
-use psgrasp_geometry::{GripperModel, N_APPROACHES};
+use psgrasp_geometry::{tcp_lifts, GripperModel, N_APPROACHES};
 use psgrasp_sim::{HitTarget, Scene};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -110,7 +110,8 @@ const OTHER: u8 = 4;
 const ITSELF: u8 = 8;
 
 /// Everything that blocks `label`'s approach `i` under the labeller's pose test
-/// ([`crate::labels::check_pose`]: hand opened `width + 2·clearance`, then the closing region).
+/// ([`crate::labels::check_pose`]): 0 if the pose is free at one of the labeller's lifts of the
+/// tool centre point, otherwise what blocks the unlifted pose.
 fn pose_blockers(
     scene: &Scene,
     gripper: &GripperModel,
@@ -118,8 +119,30 @@ fn pose_blockers(
     approach: usize,
     config: &LabelConfig,
 ) -> u8 {
+    let mut first = None;
+    for lift in tcp_lifts(&config.tcp_lifts_m) {
+        let blockers = pose_blockers_lifted(scene, gripper, label, approach, config, lift);
+        if blockers == 0 {
+            return 0;
+        }
+        first.get_or_insert(blockers);
+    }
+    first.unwrap_or(0)
+}
+
+/// What blocks `label`'s approach `i` with the tool centre point raised `lift_m`
+/// ([`crate::labels::check_pose_lifted`]: hand opened `width + 2·clearance`, then the closing
+/// region), as bits.
+fn pose_blockers_lifted(
+    scene: &Scene,
+    gripper: &GripperModel,
+    label: &GraspLabel,
+    approach: usize,
+    config: &LabelConfig,
+    lift_m: f32,
+) -> u8 {
     let grasp = label.grasp(approach);
-    let pose = lifted_pose(&grasp, config.tcp_lift_m);
+    let pose = grasp.workspace_from_gripper_lifted(lift_m);
     let object = label.object as usize;
     let opening = (grasp.width + 2.0 * config.approach_clearance_m).min(gripper.max_opening_m);
     let mut blockers = 0u8;

@@ -8,9 +8,9 @@
 //! open gripper (palm + two fingers, opened `width + 2·approach_clearance`) at each of the 18
 //! approach vectors against the whole scene (every object, the grasped one included, and the
 //! bin). A grasp configuration is stored when at least one approach is collision-free.
-use nalgebra::{Isometry3, Point3, Translation3, Vector3};
+use nalgebra::{Point3, Vector3};
 use psgrasp_geometry::{
-    antipodal_quality, ContactGrasp, GraspConfiguration, GripperModel, N_APPROACHES,
+    antipodal_quality, tcp_lifts, ContactGrasp, GraspConfiguration, GripperModel, N_APPROACHES,
 };
 use psgrasp_sim::{HitTarget, Rendering, Scene, SEGMENT_OBJECT0};
 use rand::{Rng, SeedableRng};
@@ -55,15 +55,13 @@ pub struct LabelConfig {
     /// Also store each pair seen from its second contact (`c₂`, `−b`); its collision flags are the
     /// first one's reversed (same gripper poses, turned by π about the approach).
     pub store_symmetric: bool,
-    /// The gripper poses are tested with the tool centre point raised this far back along the
-    /// approach from the contacts' midpoint (m): the contacts then meet the pads below their
-    /// centre. 0 (the paper's grasp frame) is the default and is not written to manifests.
-    #[serde(skip_serializing_if = "is_zero_f32")]
-    pub tcp_lift_m: f32,
-}
-
-fn is_zero_f32(x: &f32) -> bool {
-    *x == 0.0
+    /// An approach whose pose collides with the tool centre point at the contacts' midpoint (the
+    /// paper's grasp frame) is tried again raised these distances back along the approach, in
+    /// order (m): the contacts then meet the pads below their centre, as a real pad holds
+    /// anywhere along its length. The approach is free if any lift is. Empty (the default, not
+    /// written to manifests): the paper's frame only.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub tcp_lifts_m: Vec<f32>,
 }
 
 impl Default for LabelConfig {
@@ -83,12 +81,18 @@ impl Default for LabelConfig {
             min_visible_pixels: 20,
             check_closing_region: true,
             store_symmetric: true,
-            tcp_lift_m: 0.0,
+            tcp_lifts_m: Vec::new(),
         }
     }
 }
 
 impl LabelConfig {
+    /// Checks the settings whose bad values would not fail on their own (the lifts of the tool
+    /// centre point; field `labels.tcp_lifts_m`).
+    pub fn validate(&self) -> Result<(), psgrasp_geometry::OutOfRange> {
+        psgrasp_geometry::check_tcp_lifts(&self.tcp_lifts_m, "labels.tcp_lifts_m")
+    }
+
     /// A small configuration for tests and previews (about a tenth of the work).
     pub fn quick() -> Self {
         Self {
@@ -261,7 +265,9 @@ pub enum PoseCheck {
     ClosingRegionBlocked,
 }
 
-/// Tests the gripper at `grasp` (opened `width + 2·clearance`) against the scene.
+/// Tests the gripper at `grasp` (opened `width + 2·clearance`) against the scene: at the
+/// contacts' midpoint, then at each of `config.tcp_lifts_m`; free if any of them is, otherwise
+/// what blocks the unlifted pose.
 pub fn check_pose(
     scene: &Scene,
     gripper: &GripperModel,
@@ -269,7 +275,27 @@ pub fn check_pose(
     object: usize,
     config: &LabelConfig,
 ) -> PoseCheck {
-    let pose = lifted_pose(grasp, config.tcp_lift_m);
+    let mut first = None;
+    for lift in tcp_lifts(&config.tcp_lifts_m) {
+        let check = check_pose_lifted(scene, gripper, grasp, object, config, lift);
+        if check == PoseCheck::Free {
+            return check;
+        }
+        first.get_or_insert(check);
+    }
+    first.unwrap_or(PoseCheck::Free)
+}
+
+/// [`check_pose`] at one lift of the tool centre point (m).
+pub fn check_pose_lifted(
+    scene: &Scene,
+    gripper: &GripperModel,
+    grasp: &ContactGrasp,
+    object: usize,
+    config: &LabelConfig,
+    lift_m: f32,
+) -> PoseCheck {
+    let pose = grasp.workspace_from_gripper_lifted(lift_m);
     let opening = (grasp.width + 2.0 * config.approach_clearance_m).min(gripper.max_opening_m);
     for (k, b) in gripper.boxes(&pose, opening).iter().enumerate() {
         if scene.box_collides(b, None) {
@@ -287,11 +313,6 @@ pub fn check_pose(
         }
     }
     PoseCheck::Free
-}
-
-/// The gripper pose of `grasp` with the tool centre point raised `lift_m` back along the approach.
-pub fn lifted_pose(grasp: &ContactGrasp, lift_m: f32) -> Isometry3<f32> {
-    grasp.workspace_from_gripper() * Translation3::new(0.0, 0.0, -lift_m)
 }
 
 /// A unit vector drawn uniformly from the cone of half-angle `half_angle` around unit `axis`.

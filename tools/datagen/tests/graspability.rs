@@ -99,12 +99,12 @@ fn a_low_bar_blocked_by_the_floor_is_reached_with_the_tool_centre_point_raised()
     // hand clears the floor for the pairs across the bar (their baselines tilted in the friction
     // cone put the lower finger deeper, so it takes more than the 8 mm the bar is thick).
     let scene = boxes_on_floor(&[([0.03, 0.007, 0.004], [0.0, 0.0])]);
-    let at = |lift_m: f32| {
+    let at = |lifts_m: &[f32]| {
         graspability(
             &scene,
             &GripperModel::default(),
             &LabelConfig {
-                tcp_lift_m: lift_m,
+                tcp_lifts_m: lifts_m.to_vec(),
                 ..LabelConfig::default()
             },
             0,
@@ -113,10 +113,10 @@ fn a_low_bar_blocked_by_the_floor_is_reached_with_the_tool_centre_point_raised()
             11,
         )
     };
-    let flush = at(0.0);
+    let flush = at(&[]);
     assert_eq!(flush.verdict, GraspabilityVerdict::Floor, "{flush:?}");
     assert_eq!(flush.free, 0);
-    let raised = at(0.02);
+    let raised = at(&[0.01, 0.02]);
     assert_eq!(raised.verdict, GraspabilityVerdict::Graspable, "{raised:?}");
     assert_eq!(raised.antipodal_pairs, flush.antipodal_pairs);
     assert!(raised.free > 10, "{raised:?}");

@@ -1,6 +1,6 @@
 //! Label generation checked against analytic scenes and by independent re-checks.
 use nalgebra::{Point3, Vector3};
-use psgrasp_datagen::labels::{check_pose, PoseCheck};
+use psgrasp_datagen::labels::{check_pose, check_pose_lifted, PoseCheck};
 use psgrasp_datagen::verify::{
     contact_surface_error, gripper_hits_scene_sampled, recompute_quality,
 };
@@ -226,8 +226,9 @@ fn isolated_sphere_is_grasped_across_its_equator() {
 #[test]
 fn a_raised_tool_centre_point_labels_a_low_bar_the_contacts_frame_cannot() {
     // A 60 × 14 × 8 mm bar lying flat: at the contacts' midpoint the fingertips, 9.5 mm beyond
-    // it, are under the floor for every pair; raised 20 mm back along the approach, the pairs
-    // across the bar get free approaches, and each such pose keeps its fingertips above the floor.
+    // it, are under the floor for every pair; with lifts of 10 and 20 mm back along the approach
+    // to try, the pairs across the bar get free approaches, each free at a lift whose fingertips
+    // stay above the floor and blocked without it.
     let scene = single_object_scene(
         Primitive::Cuboid {
             half_extents: [0.03, 0.007, 0.004],
@@ -237,7 +238,7 @@ fn a_raised_tool_centre_point_labels_a_low_bar_the_contacts_frame_cannot() {
     let flush = LabelConfig::quick();
     assert!(labels_for(&scene, &flush, 5).is_empty());
     let raised = LabelConfig {
-        tcp_lift_m: 0.02,
+        tcp_lifts_m: vec![0.01, 0.02],
         ..LabelConfig::quick()
     };
     let labels = labels_for(&scene, &raised, 5);
@@ -246,8 +247,22 @@ fn a_raised_tool_centre_point_labels_a_low_bar_the_contacts_frame_cannot() {
     let floor_top = scene.bin().floor_center.z;
     for l in &labels {
         for i in (0..N_APPROACHES).filter(|&i| l.collision_free[i]) {
-            let pose = psgrasp_datagen::labels::lifted_pose(&l.grasp(i), raised.tcp_lift_m);
-            let tip = pose * Point3::new(0.0, 0.0, gripper.tip_beyond_tcp_m);
+            // Free at one of the lifts, whose fingertips stay above the floor.
+            let lift = [0.01, 0.02]
+                .into_iter()
+                .find(|&lift| {
+                    check_pose_lifted(
+                        &scene,
+                        &gripper,
+                        &l.grasp(i),
+                        l.object as usize,
+                        &flush,
+                        lift,
+                    ) == PoseCheck::Free
+                })
+                .expect("free at a lift");
+            let tip = l.grasp(i).workspace_from_gripper_lifted(lift)
+                * Point3::new(0.0, 0.0, gripper.tip_beyond_tcp_m);
             assert!(tip.z > floor_top, "fingertip {tip:?} under the floor");
             assert_ne!(
                 check_pose(&scene, &gripper, &l.grasp(i), l.object as usize, &flush),
@@ -260,9 +275,9 @@ fn a_raised_tool_centre_point_labels_a_low_bar_the_contacts_frame_cannot() {
 #[test]
 fn the_default_label_config_writes_no_lift_so_old_manifests_keep_their_hashes() {
     let text = serde_json::to_string(&LabelConfig::default()).unwrap();
-    assert!(!text.contains("tcp_lift_m"), "{text}");
+    assert!(!text.contains("tcp_lifts_m"), "{text}");
     let raised = LabelConfig {
-        tcp_lift_m: 0.006,
+        tcp_lifts_m: vec![0.003, 0.006],
         ..LabelConfig::default()
     };
     let back: LabelConfig = serde_json::from_str(&serde_json::to_string(&raised).unwrap()).unwrap();

@@ -6,7 +6,7 @@
 //! `cargo run --release -p psgrasp-eval --example lifted_trials -- [LEVEL] [SCENES] [GRASPS_PER_SCENE] [LIFT_MM]`
 mod common;
 
-use psgrasp_datagen::labels::{check_pose, generate_labels, lifted_pose, PoseCheck};
+use psgrasp_datagen::labels::{check_pose, generate_labels, PoseCheck};
 use psgrasp_datagen::{Difficulty, LabelConfig};
 use psgrasp_eval::{execute_grasp, GraspCommand, GraspOutcome};
 use std::collections::BTreeMap;
@@ -24,7 +24,7 @@ fn main() {
     let (cfg, set) = common::benchmark();
     let gripper = cfg.scenes.cell.gripper;
     let lifted_config = LabelConfig {
-        tcp_lift_m: lift_m,
+        tcp_lifts_m: vec![lift_m],
         ..cfg.scenes.labels.clone()
     };
     // outcomes[class][outcome]: class 0 = free without the lift, 1 = free only lifted.
@@ -62,7 +62,7 @@ fn main() {
         for (k, a) in sample_lifted {
             let l = &lifted[k];
             let cmd = GraspCommand {
-                workspace_from_gripper: lifted_pose(&l.grasp(a), lift_m),
+                workspace_from_gripper: l.grasp(a).workspace_from_gripper_lifted(lift_m),
                 opening_m: gripper.max_opening_m,
                 pregrasp_distance_m: cfg.cell().selection.clearance.pregrasp_distance_m,
             };

@@ -35,7 +35,7 @@ fn main() {
         let camera = psgrasp_sim::default_camera(scene.bin(), cfg.scenes.intrinsics);
         let pixels =
             visible_pixels_per_object(&scene.render(&camera).segmentation, scene.object_count());
-        for object in 0..scene.object_count() {
+        for (object, &visible) in pixels.iter().enumerate() {
             objects += 1;
             let mut at_zero = GraspabilityVerdict::Graspable;
             for (k, lift) in lifts_mm.iter().enumerate() {
@@ -43,10 +43,14 @@ fn main() {
                     candidates_per_object: candidates,
                 };
                 let labels = LabelConfig {
-                    tcp_lift_m: lift * 1e-3,
+                    tcp_lifts_m: if *lift > 0.0 {
+                        vec![lift * 1e-3]
+                    } else {
+                        Vec::new()
+                    },
                     ..cfg.scenes.labels.clone()
                 };
-                let g = graspability(&scene, &gripper, &labels, object, pixels[object], &check, 7);
+                let g = graspability(&scene, &gripper, &labels, object, visible, &check, 7);
                 if k == 0 {
                     at_zero = g.verdict;
                 }

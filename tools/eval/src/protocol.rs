@@ -103,6 +103,13 @@ impl ProtocolConfig {
                 reason: "must be a width >= 0 m",
             });
         }
+        self.scenes
+            .labels
+            .validate()
+            .map_err(|e| EvalError::InvalidConfig {
+                field: e.field,
+                reason: e.reason,
+            })?;
         self.cell().validate()?;
         Ok(self.execution.validate()?)
     }
