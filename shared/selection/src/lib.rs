@@ -108,7 +108,8 @@ pub struct SelectionConfig {
     /// raised these distances back along the approach, in order, metres: the contacts then meet
     /// the pads below their centre (a real pad holds anywhere along its length; keep the lifts
     /// within half the pad's length). The pick is the first lift that passes. Empty (default):
-    /// the paper's frame only.
+    /// the paper's frame only (and then not written, so stored configurations keep their form).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
     pub tcp_lifts_m: Vec<f32>,
 }
 
