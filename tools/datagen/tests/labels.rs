@@ -283,3 +283,16 @@ fn the_default_label_config_writes_no_lift_so_old_manifests_keep_their_hashes() 
     let back: LabelConfig = serde_json::from_str(&serde_json::to_string(&raised).unwrap()).unwrap();
     assert_eq!(back, raised);
 }
+
+#[test]
+fn bad_tcp_lifts_are_refused_by_name() {
+    for lifts in [vec![-0.01], vec![0.006, 0.003], vec![f32::INFINITY]] {
+        let config = LabelConfig {
+            tcp_lifts_m: lifts.clone(),
+            ..LabelConfig::default()
+        };
+        let e = config.validate().unwrap_err();
+        assert_eq!(e.field, "labels.tcp_lifts_m", "{lifts:?}");
+    }
+    assert!(LabelConfig::default().validate().is_ok());
+}
