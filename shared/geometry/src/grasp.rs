@@ -171,10 +171,25 @@ pub fn antipodal_quality(baseline: &Vector3<f32>, n1: &Vector3<f32>, n2: &Vector
 /// Most tool-centre-point lifts a configuration may list ([`check_tcp_lifts`]).
 pub const MAX_TCP_LIFTS: usize = 8;
 
-/// The lifts a grasp pose is tried at, in order: the contacts' own frame (0) first, then
-/// `extra_lifts_m` (a `tcp_lifts_m` setting of labels or selection).
-pub fn tcp_lifts(extra_lifts_m: &[f32]) -> impl Iterator<Item = f32> + '_ {
-    std::iter::once(0.0).chain(extra_lifts_m.iter().copied())
+/// Runs `check` with the tool centre point at the contacts (lift 0), then at each of
+/// `extra_lifts_m` (a `tcp_lifts_m` setting of labels or selection) in order, and returns the
+/// first success; when every lift fails, the unlifted pose's failure (what blocks the grasp as the
+/// paper's frame places it).
+pub fn at_first_passing_lift<T, E>(
+    extra_lifts_m: &[f32],
+    mut check: impl FnMut(f32) -> Result<T, E>,
+) -> Result<T, E> {
+    let unlifted = check(0.0);
+    if unlifted.is_ok() {
+        return unlifted;
+    }
+    for &lift in extra_lifts_m {
+        let lifted = check(lift);
+        if lifted.is_ok() {
+            return lifted;
+        }
+    }
+    unlifted
 }
 
 /// Checks a `tcp_lifts_m` setting: at most [`MAX_TCP_LIFTS`] values, each finite, in
@@ -194,6 +209,20 @@ pub fn check_tcp_lifts(lifts_m: &[f32], field: &'static str) -> Result<(), crate
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_first_passing_lift_wins_and_the_unlifted_failure_is_kept() {
+        let mut tried = Vec::new();
+        let passes_from_5mm = |lift: f32| if lift >= 0.005 { Ok(lift) } else { Err(lift) };
+        let r = at_first_passing_lift(&[0.003, 0.006, 0.009], |lift| {
+            tried.push(lift);
+            passes_from_5mm(lift)
+        });
+        assert_eq!(r, Ok(0.006));
+        assert_eq!(tried, [0.0, 0.003, 0.006]);
+        assert_eq!(at_first_passing_lift(&[0.003], passes_from_5mm), Err(0.0));
+        assert_eq!(at_first_passing_lift(&[], |_| Ok::<_, ()>(1)), Ok(1));
+    }
 
     #[test]
     fn approaches_are_orthogonal_and_point_down() {

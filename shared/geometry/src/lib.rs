@@ -22,8 +22,9 @@ pub use camera::{CameraIntrinsics, CameraModel};
 pub use clearance::HandClearance;
 pub use depth::{DepthError, DepthImage, FrameSize, MAX_DEPTH_PIXELS, MAX_IMAGE_SIDE};
 pub use grasp::{
-    antipodal_quality, approach_angles, approach_vectors, baseline_perpendicular, check_tcp_lifts,
-    tcp_lifts, ContactGrasp, GraspConfiguration, MAX_TCP_LIFTS, N_APPROACHES,
+    antipodal_quality, approach_angles, approach_vectors, at_first_passing_lift,
+    baseline_perpendicular, check_tcp_lifts, ContactGrasp, GraspConfiguration, MAX_TCP_LIFTS,
+    N_APPROACHES,
 };
 pub use gripper::{GripperModel, OrientedBox};
 pub use grippers::{GripperTable, DEFAULT_GRIPPER, GRIPPER_FILES};

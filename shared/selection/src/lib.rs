@@ -35,8 +35,8 @@ use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 use psgrasp_collision::{CollisionError, OccupancyConfig, OccupancyGrid};
 use psgrasp_fusion::NormalGridView;
 use psgrasp_geometry::{
-    check_setting, check_tcp_lifts, tcp_lifts, BinModel, GraspConfiguration, GripperModel,
-    HandClearance, OrientedBox, N_APPROACHES,
+    at_first_passing_lift, check_setting, check_tcp_lifts, BinModel, GraspConfiguration,
+    GripperModel, HandClearance, OrientedBox, N_APPROACHES,
 };
 use serde::{Deserialize, Serialize};
 
@@ -441,29 +441,21 @@ impl<'a> GraspChecker<'a> {
             .cfg
             .clearance
             .opening_m(c.width, self.gripper.max_opening_m);
-        let mut unlifted_reason = None;
-        for lift in tcp_lifts(&self.cfg.tcp_lifts_m) {
+        at_first_passing_lift(&self.cfg.tcp_lifts_m, |lift| {
             let pose = grasp.workspace_from_gripper_lifted(lift);
-            match self.check_pose_and_path(&pose, opening) {
-                Ok(pregrasp) => {
-                    return Ok(SelectedGrasp {
-                        workspace_from_gripper: pose,
-                        pregrasp,
-                        pregrasp_distance_m: self.cfg.clearance.pregrasp_distance_m,
-                        width: c.width,
-                        opening_m: opening,
-                        quality: c.quality,
-                        collision_score: score,
-                        configuration_index,
-                        approach_index,
-                    })
-                }
-                Err(reason) => {
-                    unlifted_reason.get_or_insert(reason);
-                }
-            }
-        }
-        Err(unlifted_reason.unwrap_or(RejectionReason::InvalidConfiguration))
+            let pregrasp = self.check_pose_and_path(&pose, opening)?;
+            Ok(SelectedGrasp {
+                workspace_from_gripper: pose,
+                pregrasp,
+                pregrasp_distance_m: self.cfg.clearance.pregrasp_distance_m,
+                width: c.width,
+                opening_m: opening,
+                quality: c.quality,
+                collision_score: score,
+                configuration_index,
+                approach_index,
+            })
+        })
     }
 
     /// The grasp pose, its pre-grasp backed off along −approach and the poses between them

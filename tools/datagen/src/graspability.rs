@@ -9,7 +9,7 @@
 use crate::labels::{
     antipodal_pair, sample_cone, surface_point_on_random_line, GraspLabel, LabelConfig,
 };
-use psgrasp_geometry::{tcp_lifts, GripperModel, N_APPROACHES};
+use psgrasp_geometry::{at_first_passing_lift, GripperModel, N_APPROACHES};
 use psgrasp_sim::{HitTarget, Scene};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -119,15 +119,13 @@ fn pose_blockers(
     approach: usize,
     config: &LabelConfig,
 ) -> u8 {
-    let mut first = None;
-    for lift in tcp_lifts(&config.tcp_lifts_m) {
-        let blockers = pose_blockers_lifted(scene, gripper, label, approach, config, lift);
-        if blockers == 0 {
-            return 0;
+    let free = at_first_passing_lift(&config.tcp_lifts_m, |lift| {
+        match pose_blockers_lifted(scene, gripper, label, approach, config, lift) {
+            0 => Ok(()),
+            blockers => Err(blockers),
         }
-        first.get_or_insert(blockers);
-    }
-    first.unwrap_or(0)
+    });
+    free.map_or_else(|blockers| blockers, |()| 0)
 }
 
 /// What blocks `label`'s approach `i` with the tool centre point raised `lift_m`

@@ -10,7 +10,8 @@
 //! bin). A grasp configuration is stored when at least one approach is collision-free.
 use nalgebra::{Point3, Vector3};
 use psgrasp_geometry::{
-    antipodal_quality, tcp_lifts, ContactGrasp, GraspConfiguration, GripperModel, N_APPROACHES,
+    antipodal_quality, at_first_passing_lift, ContactGrasp, GraspConfiguration, GripperModel,
+    N_APPROACHES,
 };
 use psgrasp_sim::{HitTarget, Rendering, Scene, SEGMENT_OBJECT0};
 use rand::{Rng, SeedableRng};
@@ -275,15 +276,13 @@ pub fn check_pose(
     object: usize,
     config: &LabelConfig,
 ) -> PoseCheck {
-    let mut first = None;
-    for lift in tcp_lifts(&config.tcp_lifts_m) {
-        let check = check_pose_lifted(scene, gripper, grasp, object, config, lift);
-        if check == PoseCheck::Free {
-            return check;
+    let free = at_first_passing_lift(&config.tcp_lifts_m, |lift| {
+        match check_pose_lifted(scene, gripper, grasp, object, config, lift) {
+            PoseCheck::Free => Ok(()),
+            blocked => Err(blocked),
         }
-        first.get_or_insert(check);
-    }
-    first.unwrap_or(PoseCheck::Free)
+    });
+    free.map_or_else(|blocked| blocked, |()| PoseCheck::Free)
 }
 
 /// [`check_pose`] at one lift of the tool centre point (m).

@@ -37,14 +37,7 @@ fn main() {
         let lifted =
             generate_labels(&scene, &camera, &rendering, &gripper, &lifted_config, i).labels;
         // Approaches free at the lift that the unlifted pose test refuses.
-        let only_lifted: Vec<(usize, usize)> = lifted
-            .iter()
-            .enumerate()
-            .flat_map(|(k, l)| {
-                (0..l.collision_free.len())
-                    .filter(|&a| l.collision_free[a])
-                    .map(move |a| (k, a))
-            })
+        let only_lifted: Vec<(usize, usize)> = common::free_grasps(&lifted)
             .filter(|&(k, a)| {
                 let l = &lifted[k];
                 check_pose(
@@ -57,9 +50,7 @@ fn main() {
             })
             .collect();
         only_lifted_total += only_lifted.len();
-        let n = per_scene.min(only_lifted.len());
-        let sample_lifted = (0..n).map(|j| only_lifted[j * only_lifted.len() / n]);
-        for (k, a) in sample_lifted {
+        for (k, a) in common::spread(&only_lifted, per_scene) {
             let l = &lifted[k];
             let cmd = GraspCommand {
                 workspace_from_gripper: l.grasp(a).workspace_from_gripper_lifted(lift_m),

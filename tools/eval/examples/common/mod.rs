@@ -57,18 +57,25 @@ pub fn spread_free_grasps(
     keep: impl Fn(&GraspLabel) -> bool,
     count: usize,
 ) -> Vec<(usize, usize)> {
-    let free: Vec<(usize, usize)> = labels
-        .iter()
-        .enumerate()
-        .filter(|(_, l)| keep(l))
-        .flat_map(|(k, l)| {
-            (0..l.collision_free.len())
-                .filter(|&a| l.collision_free[a])
-                .map(move |a| (k, a))
-        })
+    let free: Vec<(usize, usize)> = free_grasps(labels)
+        .filter(|&(k, _)| keep(&labels[k]))
         .collect();
-    let n = count.min(free.len());
-    (0..n).map(|j| free[j * free.len() / n]).collect()
+    spread(&free, count)
+}
+
+/// (label, approach) of every collision-free approach of `labels`.
+pub fn free_grasps(labels: &[GraspLabel]) -> impl Iterator<Item = (usize, usize)> + '_ {
+    labels.iter().enumerate().flat_map(|(k, l)| {
+        (0..l.collision_free.len())
+            .filter(|&a| l.collision_free[a])
+            .map(move |a| (k, a))
+    })
+}
+
+/// At most `count` of `items`, spread evenly over the list.
+pub fn spread<T: Copy>(items: &[T], count: usize) -> Vec<T> {
+    let n = count.min(items.len());
+    (0..n).map(|j| items[j * items.len() / n]).collect()
 }
 
 /// The command that executes approach `approach` of `label` with the hand fully open, from the
