@@ -101,8 +101,12 @@ pub struct SelectionConfig {
     /// A configuration whose grasp centre lies closer than this to a pick already taken is
     /// passed over, metres (0: no spacing; picks may then be the same grasp millimetres apart).
     pub pick_spacing_m: f32,
-    /// Which picks come first: `quality` (the paper's), `topmost`, or `centre-first`.
+    /// Which picks come first: `quality` (the paper's), `confident-quality`, `topmost`, or
+    /// `centre-first`.
     pub pick_order: PickOrder,
+    /// `confident-quality` only: a baseline counts as right within this angle of the predicted
+    /// mean, degrees (the pick check's label match uses 20°).
+    pub baseline_tolerance_deg: f32,
     /// An approach whose grasp pose, pre-grasp or path fails the collision checks with the tool
     /// centre point at the contacts' midpoint (the paper's grasp frame) is tried again with it
     /// raised these distances back along the approach, in order, metres: the contacts then meet
@@ -130,6 +134,7 @@ impl Default for SelectionConfig {
             occupancy: OccupancyConfig::default(),
             pick_spacing_m: 0.05,
             pick_order: PickOrder::Quality,
+            baseline_tolerance_deg: 20.0,
             tcp_lifts_m: Vec::new(),
         }
     }
@@ -181,6 +186,11 @@ impl SelectionConfig {
             metric(c.pick_spacing_m),
             "pick_spacing_m",
             "must lie in [0, 1) m",
+        )?;
+        check_setting(
+            c.baseline_tolerance_deg > 0.0 && c.baseline_tolerance_deg < 180.0,
+            "baseline_tolerance_deg",
+            "must lie in (0, 180)",
         )?;
         c.occupancy.validate()?;
         check_tcp_lifts(&c.tcp_lifts_m, "tcp_lifts_m")?;
@@ -557,9 +567,10 @@ fn select_from(
     let checker = GraspChecker::new(cfg, *gripper, *bin, occupancy)?;
     let mut order: Vec<usize> = (0..configs.len()).collect();
     // Priority descending (not finite: last, and rejected as invalid); ties by index.
+    let cos_half_tolerance = (0.5 * cfg.baseline_tolerance_deg.to_radians()).cos();
     let priority: Vec<f32> = configs
         .iter()
-        .map(|c| cfg.pick_order.priority(c, bin))
+        .map(|c| cfg.pick_order.priority(c, bin, cos_half_tolerance))
         .collect();
     let key = |i: usize| priority[i];
     order.sort_by(|&a, &b| key(b).total_cmp(&key(a)).then(a.cmp(&b)));

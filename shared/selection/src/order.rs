@@ -17,14 +17,24 @@ pub enum PickOrder {
     /// Grasp centre nearest the middle of the bin floor (in plan view) first: away from the
     /// walls.
     CentreFirst,
+    /// Antipodal quality times the baseline's confidence: the probability, under the predicted
+    /// Power-Spherical distribution PS(ν, κ), that the true baseline lies within
+    /// [`crate::SelectionConfig::baseline_tolerance_deg`] of ν ([`baseline_confidence`]).
+    /// Configurations without a distribution (κ ≤ 0: analytic, VGN-style, oracle) keep their
+    /// quality, and a constant κ (the wo κ ablation) keeps the quality order.
+    ConfidentQuality,
 }
 
 impl PickOrder {
-    /// The priority of configuration `c` in `bin` (higher first; not finite → last).
-    pub fn priority(self, c: &GraspConfiguration, bin: &BinModel) -> f32 {
+    /// The priority of configuration `c` in `bin` (higher first; not finite → last);
+    /// `cos_half_tolerance` = cos(tolerance / 2) for [`PickOrder::ConfidentQuality`].
+    pub fn priority(self, c: &GraspConfiguration, bin: &BinModel, cos_half_tolerance: f32) -> f32 {
         let p = grasp_centre(c);
         let v = match self {
             PickOrder::Quality => c.quality,
+            PickOrder::ConfidentQuality => {
+                c.quality * baseline_confidence(c.kappa, cos_half_tolerance)
+            }
             PickOrder::Topmost => p.z,
             PickOrder::CentreFirst => -(p.x - bin.floor_center.x).hypot(p.y - bin.floor_center.y),
         };
@@ -33,6 +43,17 @@ impl PickOrder {
         } else {
             f32::NEG_INFINITY
         }
+    }
+}
+
+/// P(angle(x, ν) ≤ θ) for x ~ PS(ν, κ) on S², with `cos_half_tolerance` = cos(θ/2): the
+/// marginal of t = ν·x has density ∝ (1 + t)^κ on [−1, 1], so the probability is
+/// 1 − ((1 + cos θ)/2)^(κ+1) = 1 − cos²(θ/2)^(κ+1). κ ≤ 0 (no distribution) gives 1.
+pub fn baseline_confidence(kappa: f32, cos_half_tolerance: f32) -> f32 {
+    if kappa > 0.0 {
+        1.0 - (cos_half_tolerance * cos_half_tolerance).powf(kappa + 1.0)
+    } else {
+        1.0
     }
 }
 
@@ -63,7 +84,7 @@ mod tests {
         let c = bin.floor_center;
         let high_poor = at(c.x + 0.1, c.y, c.z + 0.2, 0.6);
         let low_good_central = at(c.x - 0.02, c.y, c.z + 0.05, 0.9);
-        let p = |o: PickOrder, g: &GraspConfiguration| o.priority(g, &bin);
+        let p = |o: PickOrder, g: &GraspConfiguration| o.priority(g, &bin, 0.98);
         assert!(p(PickOrder::Quality, &low_good_central) > p(PickOrder::Quality, &high_poor));
         assert!(p(PickOrder::Topmost, &high_poor) > p(PickOrder::Topmost, &low_good_central));
         assert!(
@@ -75,8 +96,60 @@ mod tests {
             PickOrder::Quality,
             PickOrder::Topmost,
             PickOrder::CentreFirst,
+            PickOrder::ConfidentQuality,
         ] {
-            assert_eq!(o.priority(&nan, &bin), f32::NEG_INFINITY);
+            assert_eq!(o.priority(&nan, &bin, 0.98), f32::NEG_INFINITY);
         }
+    }
+
+    #[test]
+    fn baseline_confidence_is_the_power_spherical_mass_within_the_tolerance() {
+        let theta = 20f32.to_radians();
+        let cos_half = (0.5 * theta).cos();
+        // κ → 0: uniform on the sphere, the cap's share (1 − cos θ)/2.
+        let uniform = baseline_confidence(1e-6, cos_half);
+        assert!(
+            (uniform - 0.5 * (1.0 - theta.cos())).abs() < 1e-5,
+            "{uniform}"
+        );
+        // κ = 25, 60: numerical integration of the marginal density (1 + t)^κ.
+        for kappa in [25.0f64, 60.0] {
+            let n = 200_000;
+            let mass = |lo: f64| {
+                let h = (1.0 - lo) / n as f64;
+                (0..n)
+                    .map(|i| (1.0 + lo + (i as f64 + 0.5) * h).powf(kappa) * h)
+                    .sum::<f64>()
+            };
+            let expected = mass((theta as f64).cos()) / mass(-1.0);
+            let got = baseline_confidence(kappa as f32, cos_half) as f64;
+            assert!(
+                (got - expected).abs() < 1e-4,
+                "κ {kappa}: {got} vs {expected}"
+            );
+        }
+        // More concentrated: more mass inside; no distribution: no discount.
+        assert!(baseline_confidence(100.0, cos_half) > baseline_confidence(25.0, cos_half));
+        assert_eq!(baseline_confidence(0.0, cos_half), 1.0);
+    }
+
+    #[test]
+    fn confident_quality_ranks_by_quality_times_confidence() {
+        let bin = BinModel::default();
+        let c = bin.floor_center;
+        let cos_half = 10f32.to_radians().cos();
+        let with = |q: f32, kappa: f32| GraspConfiguration {
+            kappa,
+            ..at(c.x, c.y, c.z + 0.05, q)
+        };
+        let p = |g: &GraspConfiguration| PickOrder::ConfidentQuality.priority(g, &bin, cos_half);
+        // Same quality: the sharper baseline first.
+        assert!(p(&with(0.8, 80.0)) > p(&with(0.8, 25.0)));
+        // A slightly lower quality with a far sharper baseline wins; a much lower one does not.
+        assert!(p(&with(0.75, 100.0)) > p(&with(0.8, 25.0)));
+        assert!(p(&with(0.4, 100.0)) < p(&with(0.8, 25.0)));
+        // One κ for all (the wo κ ablation) or none (analytic, VGN, oracle): the quality order.
+        assert!(p(&with(0.9, 25.0)) > p(&with(0.8, 25.0)));
+        assert_eq!(p(&with(0.7, 0.0)), 0.7);
     }
 }

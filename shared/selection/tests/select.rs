@@ -503,6 +503,44 @@ fn the_pick_order_policy_decides_which_pick_comes_first() {
     assert_eq!(first(PickOrder::Quality), vec![0, 2, 1]);
     assert_eq!(first(PickOrder::Topmost), vec![1, 2, 0]);
     assert_eq!(first(PickOrder::CentreFirst), vec![0, 1, 2]);
+    // No κ on these configurations (as from the analytic backend): quality order.
+    assert_eq!(first(PickOrder::ConfidentQuality), vec![0, 2, 1]);
+}
+
+/// `confident-quality` puts a slightly poorer grasp with a far sharper baseline distribution
+/// before a better-scored one whose baseline is uncertain; the tolerance decides by how much.
+#[test]
+fn confident_quality_puts_a_sharp_baseline_before_a_slightly_better_uncertain_one() {
+    let grid = scene(&[]);
+    let c = bin().floor_center;
+    let mut configs = [
+        config([c.x - 0.1, c.y, c.z + 0.04], 0.9, &DOWN, 1.0),
+        config([c.x + 0.1, c.y, c.z + 0.04], 0.8, &DOWN, 1.0),
+    ];
+    configs[0].kappa = 25.0;
+    configs[1].kappa = 100.0;
+    let order = |pick_order: PickOrder, baseline_tolerance_deg: f32| {
+        let cfg = SelectionConfig {
+            pick_order,
+            baseline_tolerance_deg,
+            ..SelectionConfig::default()
+        };
+        let sel = run(&configs, &grid, &cfg);
+        sel.picks
+            .iter()
+            .map(|p| p.configuration_index)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(order(PickOrder::Quality, 20.0), vec![0, 1]);
+    // 20°: 0.9 · 0.55 against 0.8 · 0.96.
+    assert_eq!(order(PickOrder::ConfidentQuality, 20.0), vec![1, 0]);
+    // 90°: both baselines nearly surely within it, quality decides again.
+    assert_eq!(order(PickOrder::ConfidentQuality, 90.0), vec![0, 1]);
+    let bad = SelectionConfig {
+        baseline_tolerance_deg: 0.0,
+        ..SelectionConfig::default()
+    };
+    assert!(format!("{:?}", bad.validate().unwrap_err()).contains("baseline_tolerance_deg"));
 }
 
 #[test]
