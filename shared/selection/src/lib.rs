@@ -105,7 +105,9 @@ pub struct SelectionConfig {
     /// `centre-first`.
     pub pick_order: PickOrder,
     /// `confident-quality` only: a baseline counts as right within this angle of the predicted
-    /// mean, degrees (the pick check's label match uses 20°).
+    /// mean, degrees (the pick check's label match uses 20°). Not written at its default, so
+    /// stored configurations (dataset manifests, evaluation runs) keep their form.
+    #[serde(skip_serializing_if = "is_default_baseline_tolerance")]
     pub baseline_tolerance_deg: f32,
     /// An approach whose grasp pose, pre-grasp or path fails the collision checks with the tool
     /// centre point at the contacts' midpoint (the paper's grasp frame) is tried again with it
@@ -115,6 +117,13 @@ pub struct SelectionConfig {
     /// the paper's frame only (and then not written, so stored configurations keep their form).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub tcp_lifts_m: Vec<f32>,
+}
+
+/// `SelectionConfig::baseline_tolerance_deg`'s default, degrees.
+pub const DEFAULT_BASELINE_TOLERANCE_DEG: f32 = 20.0;
+
+fn is_default_baseline_tolerance(deg: &f32) -> bool {
+    *deg == DEFAULT_BASELINE_TOLERANCE_DEG
 }
 
 impl Default for SelectionConfig {
@@ -134,7 +143,7 @@ impl Default for SelectionConfig {
             occupancy: OccupancyConfig::default(),
             pick_spacing_m: 0.05,
             pick_order: PickOrder::Quality,
-            baseline_tolerance_deg: 20.0,
+            baseline_tolerance_deg: DEFAULT_BASELINE_TOLERANCE_DEG,
             tcp_lifts_m: Vec::new(),
         }
     }

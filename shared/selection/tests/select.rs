@@ -610,13 +610,18 @@ fn tcp_lifts_outside_their_range_are_refused_by_name() {
 }
 
 #[test]
-fn the_default_config_writes_no_lifts_so_stored_configurations_keep_their_form() {
+fn the_default_config_writes_no_lifts_or_tolerance_so_stored_configurations_keep_their_form() {
     let text = toml::to_string(&SelectionConfig::default()).unwrap();
     assert!(!text.contains("tcp_lifts_m"), "{text}");
+    assert!(!text.contains("baseline_tolerance_deg"), "{text}");
     let raised = SelectionConfig {
         tcp_lifts_m: vec![0.003, 0.006],
+        baseline_tolerance_deg: 12.5,
         ..SelectionConfig::default()
     };
+    assert!(toml::to_string(&raised)
+        .unwrap()
+        .contains("baseline_tolerance_deg = 12.5"));
     let back: SelectionConfig = toml::from_str(&toml::to_string(&raised).unwrap()).unwrap();
     assert_eq!(back, raised);
 }
