@@ -1,4 +1,4 @@
-"""Command line: ``python -m psgrasp_training {train,export,init,evaluate,pickcheck,profile,hitrate} ...``."""
+"""Command line: ``python -m psgrasp_training {train,export,init,evaluate,pickcheck,profile,hitrate,kappa-ceiling} ...``."""
 
 from __future__ import annotations
 
@@ -70,6 +70,12 @@ def _parser() -> argparse.ArgumentParser:
     h.add_argument("--data", required=True, type=Path)
     h.add_argument("--scenes", type=int, default=10)
     h.add_argument("--radius-mm", type=float, nargs="*", default=[3.0, 4.5, 6.0])
+
+    c = sub.add_parser("kappa-ceiling",
+                       help="the κ the labels allow: per training point, the maximum-likelihood κ of its neighbour baselines")
+    c.add_argument("--config", required=True, type=Path)
+    c.add_argument("--data", required=True, type=Path)
+    c.add_argument("--scenes", type=int, default=20)
     return p
 
 
@@ -143,6 +149,10 @@ def main(argv: list[str] | None = None) -> int:
             from .train import hitrate_report
 
             hitrate_report(load_config(args.config), args.data, args.scenes, [r / 1000 for r in args.radius_mm])
+        elif args.command == "kappa-ceiling":
+            from .kappa_ceiling import kappa_ceiling_report
+
+            kappa_ceiling_report(load_config(args.config), args.data, args.scenes)
     except (ConfigError, DatasetError, RunError, ExportError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
