@@ -35,11 +35,22 @@ def ml_direction(b: torch.Tensor) -> torch.Tensor:
 
 def ml_kappa(b: torch.Tensor, nu: torch.Tensor | None = None) -> float:
     """Maximum-likelihood κ of unit vectors b [n, 3] under PS(ν, κ) on S² (ν: their mean direction
-    unless given); ``inf`` when they all coincide with ν (a single neighbour)."""
+    unless given); ``inf`` when they all coincide with ν (a single neighbour), 0 (uniform) when they
+    lie so far from ν that no κ ≥ 0 does better."""
     nu = ml_direction(b) if nu is None else nu
     dot = (b.to(torch.float64) @ nu.to(torch.float64)).clamp(-1.0 + 1e-9, 1.0)
     g = _LOG2 - float(torch.log1p(dot).mean())
-    return math.inf if g <= 1e-12 else 1.0 / g - 1.0
+    return math.inf if g <= 1e-12 else max(1.0 / g - 1.0, 0.0)
+
+
+def earned_kappa(dot: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """Per row, the maximum-likelihood κ of the valid neighbours given a fixed ν: dot [N, k] = ν·b_n,
+    valid [N, k] mask (≥ 1 per row). ``inf`` where every neighbour lies on ν. The κ a model with
+    this ν earns at each point (before the clamp to [κ0, 4κ0]); ≥ 0 as ``ml_kappa``."""
+    lp = torch.log1p(dot.to(torch.float64).clamp(-1.0 + 1e-9, 1.0))
+    n = valid.sum(1).clamp_min(1).to(torch.float64)
+    g = _LOG2 - torch.where(valid, lp, torch.zeros_like(lp)).sum(1) / n
+    return torch.where(g > 1e-12, (1.0 / g.clamp_min(1e-12) - 1.0).clamp_min(0.0), torch.full_like(g, math.inf))
 
 
 def mean_angle_deg(kappa: float, samples: int = 200_001) -> float:

@@ -20,6 +20,7 @@ from .config import Config
 from .data import Scene, SceneDataset, crop_origin, crop_scene, flip_scene
 from .decode import class_probabilities, sample_features, sample_grid, subvoxel_points
 from .export import export_model
+from .kappa_ceiling import earned_kappa
 from .losses import (GraspIndex, contact_voxel_points, focal_loss, grasp_loss, grasp_targets,
                      predicted_voxel_points)
 from .model import CLASSES, GraspNet
@@ -227,6 +228,7 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
     union = torch.zeros(3, dtype=torch.float64)
     tp = n_pred = n_true = 0
     angles, width_err, q_err, kappas, hits, npts = [], [], [], [], 0, 0
+    mean_angles, earned = [], []
     picks = PickStats(PickCheckConfig())
     for entry in entries:
         scene = ds.scene(entry)
@@ -268,6 +270,9 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             ang = torch.where(valid, torch.rad2deg(torch.acos(cos)), torch.full_like(cos, math.inf))
             best_ang, best = ang.min(1)
             angles.append(best_ang)
+            n_valid = valid.sum(1).clamp_min(1)
+            mean_angles.append(torch.where(valid, ang, torch.zeros_like(ang)).sum(1) / n_valid)
+            earned.append(earned_kappa(cos, valid))
             w_best = scene.width[idx.clamp(min=0).gather(1, best.unsqueeze(1)).squeeze(1)]
             width_err.append((out["width"][h] - w_best).abs() * 1000.0)
     net.train()
@@ -280,7 +285,18 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             "width_error_mm": mean(width_err), "quality_mae": mean(q_err), "points": npts,
             "hit_rate": hits / npts if npts else 0.0, "kappa_mean": mean(kappas),
             "contact_precision": tp / n_pred if n_pred else 0.0, "contact_recall": tp / n_true if n_true else 0.0,
-            "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true, "picks": picks.result()}
+            "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true, "picks": picks.result(),
+            **earned_kappa_figures(mean_angles, earned, cfg.model.kappa0)}
+
+
+def earned_kappa_figures(mean_angles: list[torch.Tensor], earned: list[torch.Tensor], kappa0: float) -> dict:
+    """Validation figures of the κ the predicted baselines earn (kappa_ceiling.earned_kappa): the mean
+    angle of ν to all neighbour labels, the median earned κ and the share of points above κ0."""
+    if not earned or sum(len(e) for e in earned) == 0:
+        return {"baseline_mean_neighbour_angle_deg": 0.0, "kappa_earned_median": 0.0, "kappa_earned_above_floor": 0.0}
+    e = torch.cat(earned)
+    return {"baseline_mean_neighbour_angle_deg": float(torch.cat(mean_angles).mean()),
+            "kappa_earned_median": float(e.median()), "kappa_earned_above_floor": float((e > kappa0).double().mean())}
 
 
 def _open_log(run_dir: Path, resume_step: int, fields: list[str] = LOG_FIELDS):

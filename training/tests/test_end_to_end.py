@@ -37,6 +37,9 @@ def test_train_writes_log_checkpoints_and_model(trained_run):
     assert (run / "checkpoints" / "step_0000005.pt").is_file() and load_checkpoint(run)["step"] == 10
     assert val["scenes"] == 1 and val["points"] > 0 and set(val["iou"]) == {"empty", "contact", "gripper"}
     assert 0 <= val["contact_recall"] <= 1 and val["contact_voxels_true"] > 0 and val["kappa_mean"] >= 25
+    # ν's mean angle to all neighbour labels is at least its angle to the nearest one.
+    assert val["baseline_mean_neighbour_angle_deg"] >= val["baseline_angle_error_deg"] - 1e-4
+    assert 0 <= val["kappa_earned_above_floor"] <= 1 and val["kappa_earned_median"] >= 0
     card = json.loads((run / "model" / "card.json").read_text())
     assert card["training"]["iterations"] == 10 and card["grid"]["dims"] == [16, 16, 16]
     # The training time over all sittings, as the final checkpoint has it, in core-hours too.

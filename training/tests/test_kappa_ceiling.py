@@ -56,3 +56,18 @@ def test_report_on_box_scenes_puts_every_point_at_the_cap(box_dataset, tiny_cfg)
     assert r.mean_angle_deg == pytest.approx(0.0, abs=1e-3)
     assert r.mean_neighbours > 1
     assert len(lines) == 3 and "κ*" in lines[1]
+
+
+def test_earned_kappa_per_row_matches_ml_kappa_with_that_nu_and_ignores_padding():
+    g = torch.Generator().manual_seed(3)
+    nu = torch.nn.functional.normalize(torch.randn(4, 3, generator=g, dtype=torch.float64), dim=1)
+    b = torch.nn.functional.normalize(nu.unsqueeze(1) + 0.3 * torch.randn(4, 6, 3, generator=g, dtype=torch.float64), dim=2)
+    valid = torch.tensor([[True] * 6, [True] * 3 + [False] * 3, [True] + [False] * 5, [True] * 2 + [False] * 4])
+    # Padding rows hold garbage (an antipodal vector) that must not count.
+    b[~valid] = -nu.unsqueeze(1).expand(-1, 6, -1)[~valid]
+    dot = (b * nu.unsqueeze(1)).sum(-1)
+    e = kc.earned_kappa(dot, valid)
+    for i in range(4):
+        assert float(e[i]) == pytest.approx(kc.ml_kappa(b[i][valid[i]], nu[i]), rel=1e-9)
+    # A single neighbour exactly on ν earns an unbounded κ.
+    assert math.isinf(float(kc.earned_kappa(torch.ones(1, 1, dtype=torch.float64), torch.ones(1, 1, dtype=torch.bool))[0]))
