@@ -228,7 +228,7 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
     union = torch.zeros(3, dtype=torch.float64)
     tp = n_pred = n_true = 0
     angles, width_err, q_err, kappas, hits, npts = [], [], [], [], 0, 0
-    mean_angles, earned = [], []
+    mean_angles, earned, kappa_hit = [], [], []
     picks = PickStats(PickCheckConfig())
     for entry in entries:
         scene = ds.scene(entry)
@@ -273,6 +273,7 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             n_valid = valid.sum(1).clamp_min(1)
             mean_angles.append(torch.where(valid, ang, torch.zeros_like(ang)).sum(1) / n_valid)
             earned.append(earned_kappa(cos, valid))
+            kappa_hit.append(out["kappa"][h])
             w_best = scene.width[idx.clamp(min=0).gather(1, best.unsqueeze(1)).squeeze(1)]
             width_err.append((out["width"][h] - w_best).abs() * 1000.0)
     net.train()
@@ -286,17 +287,34 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             "hit_rate": hits / npts if npts else 0.0, "kappa_mean": mean(kappas),
             "contact_precision": tp / n_pred if n_pred else 0.0, "contact_recall": tp / n_true if n_true else 0.0,
             "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true, "picks": picks.result(),
-            **earned_kappa_figures(mean_angles, earned, cfg.model.kappa0)}
+            **earned_kappa_figures(mean_angles, earned, kappa_hit, cfg.model.kappa0)}
 
 
-def earned_kappa_figures(mean_angles: list[torch.Tensor], earned: list[torch.Tensor], kappa0: float) -> dict:
+def earned_kappa_figures(mean_angles: list[torch.Tensor], earned: list[torch.Tensor], predicted: list[torch.Tensor],
+                         kappa0: float) -> dict:
     """Validation figures of the κ the predicted baselines earn (kappa_ceiling.earned_kappa): the mean
-    angle of ν to all neighbour labels, the median earned κ and the share of points above κ0."""
+    angle of ν to all neighbour labels, the median earned κ, the share of points above κ0, and
+    Spearman's rank correlation of the predicted κ with the earned one (does the κ head find the
+    points where ν is good?)."""
     if not earned or sum(len(e) for e in earned) == 0:
-        return {"baseline_mean_neighbour_angle_deg": 0.0, "kappa_earned_median": 0.0, "kappa_earned_above_floor": 0.0}
+        return {"baseline_mean_neighbour_angle_deg": 0.0, "kappa_earned_median": 0.0, "kappa_earned_above_floor": 0.0,
+                "kappa_rank_correlation": 0.0}
     e = torch.cat(earned)
     return {"baseline_mean_neighbour_angle_deg": float(torch.cat(mean_angles).mean()),
-            "kappa_earned_median": float(e.median()), "kappa_earned_above_floor": float((e > kappa0).double().mean())}
+            "kappa_earned_median": float(e.median()), "kappa_earned_above_floor": float((e > kappa0).double().mean()),
+            "kappa_rank_correlation": spearman(torch.cat(predicted), e)}
+
+
+def spearman(a: torch.Tensor, b: torch.Tensor) -> float:
+    """Spearman's rank correlation of two 1-D tensors (ties ranked in order; 0 when either is constant)."""
+    if len(a) < 2:
+        return 0.0
+    ra = torch.argsort(torch.argsort(a.to(torch.float64), stable=True)).to(torch.float64)
+    rb = torch.argsort(torch.argsort(b.to(torch.float64), stable=True)).to(torch.float64)
+    if bool((a == a[0]).all()) or bool((b == b[0]).all()):
+        return 0.0
+    ra, rb = ra - ra.mean(), rb - rb.mean()
+    return float((ra * rb).sum() / (ra.norm() * rb.norm()))
 
 
 def _open_log(run_dir: Path, resume_step: int, fields: list[str] = LOG_FIELDS):

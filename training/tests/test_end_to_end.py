@@ -40,6 +40,7 @@ def test_train_writes_log_checkpoints_and_model(trained_run):
     # ν's mean angle to all neighbour labels is at least its angle to the nearest one.
     assert val["baseline_mean_neighbour_angle_deg"] >= val["baseline_angle_error_deg"] - 1e-4
     assert 0 <= val["kappa_earned_above_floor"] <= 1 and val["kappa_earned_median"] >= 0
+    assert -1 <= val["kappa_rank_correlation"] <= 1
     card = json.loads((run / "model" / "card.json").read_text())
     assert card["training"]["iterations"] == 10 and card["grid"]["dims"] == [16, 16, 16]
     # The training time over all sittings, as the final checkpoint has it, in core-hours too.

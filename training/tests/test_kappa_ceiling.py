@@ -71,3 +71,14 @@ def test_earned_kappa_per_row_matches_ml_kappa_with_that_nu_and_ignores_padding(
         assert float(e[i]) == pytest.approx(kc.ml_kappa(b[i][valid[i]], nu[i]), rel=1e-9)
     # A single neighbour exactly on ν earns an unbounded κ.
     assert math.isinf(float(kc.earned_kappa(torch.ones(1, 1, dtype=torch.float64), torch.ones(1, 1, dtype=torch.bool))[0]))
+
+
+def test_spearman_of_monotone_reversed_and_constant_inputs():
+    from psgrasp_training.train import spearman
+
+    a = torch.tensor([1.0, 5.0, 2.0, 9.0, 3.0])
+    assert spearman(a, a ** 3) == pytest.approx(1.0)
+    assert spearman(a, -a) == pytest.approx(-1.0)
+    assert spearman(a, torch.full_like(a, 25.0)) == 0.0
+    # Infinite earned κ (a neighbour exactly on ν) ranks highest.
+    assert spearman(a, torch.tensor([1.0, math.inf, 2.0, math.inf, 3.0])) > 0.9
