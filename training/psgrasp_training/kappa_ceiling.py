@@ -26,11 +26,13 @@ from .losses import GraspIndex, contact_voxel_points
 _LOG2 = math.log(2.0)
 
 
-def ml_direction(b: torch.Tensor) -> torch.Tensor:
-    """The neighbours' mean direction [3] (unit; the PS maximum-likelihood direction for sets
-    concentrated in a hemisphere, which neighbour baselines of one contact are)."""
-    m = b.sum(0)
-    return m / m.norm().clamp_min(1e-12)
+def ml_direction(b: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
+    """The neighbours' mean direction: b [..., n, 3] → [..., 3] unit (the PS maximum-likelihood
+    direction for sets concentrated in a hemisphere, which neighbour baselines of one contact are);
+    ``valid`` [..., n] masks padding."""
+    if valid is not None:
+        b = b * valid.unsqueeze(-1)
+    return torch.nn.functional.normalize(b.sum(-2), dim=-1, eps=1e-12)
 
 
 def ml_kappa(b: torch.Tensor, nu: torch.Tensor | None = None) -> float:
@@ -38,9 +40,8 @@ def ml_kappa(b: torch.Tensor, nu: torch.Tensor | None = None) -> float:
     unless given); ``inf`` when they all coincide with ν (a single neighbour), 0 (uniform) when they
     lie so far from ν that no κ ≥ 0 does better."""
     nu = ml_direction(b) if nu is None else nu
-    dot = (b.to(torch.float64) @ nu.to(torch.float64)).clamp(-1.0 + 1e-9, 1.0)
-    g = _LOG2 - float(torch.log1p(dot).mean())
-    return math.inf if g <= 1e-12 else max(1.0 / g - 1.0, 0.0)
+    dot = b.to(torch.float64) @ nu.to(torch.float64)
+    return float(earned_kappa(dot.unsqueeze(0), torch.ones_like(dot, dtype=torch.bool).unsqueeze(0))[0])
 
 
 def earned_kappa(dot: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
@@ -77,10 +78,11 @@ class KappaCeiling:
     clamped_mean: float
 
 
-def kappa_ceiling(kappas: list[float], angles: list[float], counts: list[int], kappa0: float) -> KappaCeiling:
-    """Summary of per-point κ* (``inf`` for single-neighbour points), their mean angles and neighbour counts."""
-    k = torch.tensor(kappas, dtype=torch.float64)
-    n = torch.tensor(counts, dtype=torch.float64)
+def kappa_ceiling(kappas, angles, counts, kappa0: float) -> KappaCeiling:
+    """Summary of per-point κ* (``inf`` for single-neighbour points), their mean angles and neighbour
+    counts (sequences or 1-D tensors of equal length)."""
+    k = torch.as_tensor(kappas, dtype=torch.float64)
+    n = torch.as_tensor(counts, dtype=torch.float64)
     multi = n > 1
     km = k[multi]
     clamped = k.clamp(kappa0, 4 * kappa0)
@@ -89,7 +91,7 @@ def kappa_ceiling(kappas: list[float], angles: list[float], counts: list[int], k
         points=len(kappas),
         single_neighbour_share=float((n == 1).double().mean()) if len(n) else nan,
         mean_neighbours=float(n.mean()) if len(n) else nan,
-        mean_angle_deg=float(torch.tensor(angles, dtype=torch.float64)[multi].mean()) if bool(multi.any()) else nan,
+        mean_angle_deg=float(torch.as_tensor(angles, dtype=torch.float64)[multi].mean()) if bool(multi.any()) else nan,
         median_kappa=float(km.median()) if len(km) else nan,
         below_floor_share=float((k < kappa0).double().mean()) if len(k) else nan,
         at_cap_share=float((k >= 4 * kappa0).double().mean()) if len(k) else nan,
@@ -103,25 +105,28 @@ def kappa_ceiling_report(cfg: Config, data: Path, scenes: int, log=print) -> Kap
     from .train import derive_seed
 
     ds = SceneDataset(data, cfg)
-    kappas: list[float] = []
-    angles: list[float] = []
-    counts: list[int] = []
+    kappas: list[torch.Tensor] = []
+    angles: list[torch.Tensor] = []
+    counts: list[torch.Tensor] = []
     c = cfg.contacts
     for e in ds.train_entries[:scenes]:
         scene = ds.scene(e)
         g = torch.Generator().manual_seed(derive_seed(cfg.seed, 5, scene.index))
         pts = contact_voxel_points(scene, cfg, g)
-        nb = GraspIndex(scene.contact, max(c.neighbour_radius_m, scene.voxel_size_m)).query(
-            pts, c.neighbour_radius_m, c.max_neighbours)
-        for row in nb.idx:
-            idx = row[row >= 0]
-            if len(idx) == 0:
-                continue
-            b = scene.baseline[idx].to(torch.float64)
-            nu = ml_direction(b)
-            kappas.append(ml_kappa(b, nu))
-            angles.append(float(torch.rad2deg(torch.arccos((b @ nu).clamp(-1.0, 1.0))).mean()))
-            counts.append(len(idx))
+        idx = GraspIndex(scene.contact, max(c.neighbour_radius_m, scene.voxel_size_m)).query(
+            pts, c.neighbour_radius_m, c.max_neighbours).idx
+        idx = idx[(idx >= 0).any(1)]
+        valid = idx >= 0
+        b = scene.baseline[idx.clamp(min=0)].to(torch.float64)  # [N, k, 3]
+        nu = ml_direction(b, valid)
+        dot = (b * nu.unsqueeze(1)).sum(-1)
+        n = valid.sum(1)
+        kappas.append(earned_kappa(dot, valid))
+        ang = torch.rad2deg(torch.arccos(dot.clamp(-1.0, 1.0)))
+        angles.append(torch.where(valid, ang, torch.zeros_like(ang)).sum(1) / n)
+        counts.append(n)
+    cat = (lambda xs: torch.cat(xs) if xs else torch.zeros(0, dtype=torch.float64))
+    kappas, angles, counts = cat(kappas), cat(angles), cat(counts)
     k0 = cfg.model.kappa0
     r = kappa_ceiling(kappas, angles, counts, k0)
     log(f"{min(scenes, len(ds.train_entries))} scenes, {r.points} training points with a neighbour label "
