@@ -228,7 +228,7 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
     union = torch.zeros(3, dtype=torch.float64)
     tp = n_pred = n_true = 0
     angles, width_err, q_err, kappas, hits, npts = [], [], [], [], 0, 0
-    mean_angles, earned, kappa_hit = [], [], []
+    mean_angles, earned, kappa_hit, counts = [], [], [], []
     picks = PickStats(PickCheckConfig())
     for entry in entries:
         scene = ds.scene(entry)
@@ -270,6 +270,7 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             ang = torch.where(valid, torch.rad2deg(torch.acos(cos)), torch.full_like(cos, math.inf))
             best_ang, best = ang.min(1)
             angles.append(best_ang)
+            counts.append(valid.sum(1))
             n_valid = valid.sum(1).clamp_min(1)
             mean_angles.append(torch.where(valid, ang, torch.zeros_like(ang)).sum(1) / n_valid)
             earned.append(earned_kappa(cos, valid))
@@ -287,7 +288,25 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             "hit_rate": hits / npts if npts else 0.0, "kappa_mean": mean(kappas),
             "contact_precision": tp / n_pred if n_pred else 0.0, "contact_recall": tp / n_true if n_true else 0.0,
             "contact_voxels_predicted": n_pred, "contact_voxels_true": n_true, "picks": picks.result(),
+            "baseline_angle_error_by_neighbours": angle_error_by_neighbours(angles, counts),
             **earned_kappa_figures(mean_angles, earned, kappa_hit, cfg.model.kappa0)}
+
+
+#: Neighbour-count bands of :func:`angle_error_by_neighbours`: (name, fewest, most) labels.
+NEIGHBOUR_BANDS = (("1", 1, 1), ("2-3", 2, 3), ("4+", 4, 1 << 30))
+
+
+def angle_error_by_neighbours(angles: list[torch.Tensor], counts: list[torch.Tensor]) -> dict:
+    """Mean baseline angle error (to the nearest label) and point count per band of neighbour-label
+    count. A point with one label is judged against a single sample of the grasps its contact
+    allows, so its error carries the labels' own spread; points with many labels measure ν itself."""
+    out = {}
+    a = torch.cat(angles) if angles else torch.zeros(0)
+    c = torch.cat(counts) if counts else torch.zeros(0, dtype=torch.long)
+    for name, lo, hi in NEIGHBOUR_BANDS:
+        m = (c >= lo) & (c <= hi)
+        out[name] = {"points": int(m.sum()), "mean_deg": float(a[m].mean()) if bool(m.any()) else 0.0}
+    return out
 
 
 def earned_kappa_figures(mean_angles: list[torch.Tensor], earned: list[torch.Tensor], predicted: list[torch.Tensor],

@@ -40,6 +40,12 @@ def test_train_writes_log_checkpoints_and_model(trained_run):
     # ν's mean angle to all neighbour labels is at least its angle to the nearest one.
     assert val["baseline_mean_neighbour_angle_deg"] >= val["baseline_angle_error_deg"] - 1e-4
     assert 0 <= val["kappa_earned_above_floor"] <= 1 and val["kappa_earned_median"] >= 0
+    bands = val["baseline_angle_error_by_neighbours"]
+    # The bands split the labelled points: their counts add up, their weighted mean is the overall error.
+    n_hit = sum(b["points"] for b in bands.values())
+    assert n_hit == round(val["points"] * val["hit_rate"]) and n_hit > 0
+    weighted = sum(b["points"] * b["mean_deg"] for b in bands.values()) / n_hit
+    assert abs(weighted - val["baseline_angle_error_deg"]) < 1e-3 * max(1.0, weighted)
     assert -1 <= val["kappa_rank_correlation"] <= 1
     card = json.loads((run / "model" / "card.json").read_text())
     assert card["training"]["iterations"] == 10 and card["grid"]["dims"] == [16, 16, 16]
