@@ -26,6 +26,7 @@ pub fn pick_json(frame_id: u64, p: &PickRecord) -> Value {
         "collision_score": p.collision_score,
         "configuration_index": p.configuration_index,
         "approach_index": p.approach_index,
+        "fallback": p.fallback != 0,
         "workspace": {
             "tcp": pose(p.position, p.orientation_xyzw),
             "pregrasp_tcp": pose(p.pregrasp_position, p.orientation_xyzw),
@@ -70,6 +71,8 @@ pub fn pick_from_json(v: &Value) -> Option<PickRecord> {
         configuration_index: v["configuration_index"].as_u64()? as u32,
         approach_index: v["approach_index"].as_u64()? as u32,
         rank: v["rank"].as_u64()? as u32,
+        // Absent in JSON written before the fallback tier existed: a primary pick.
+        fallback: v["fallback"].as_bool().unwrap_or(false) as u32,
         contact: p3(&w["contact_m"])?,
         base_calibrated: b["calibrated"].as_bool()? as u32,
         base_position: p3(&b["tcp"]["position_m"])?,
@@ -80,7 +83,7 @@ pub fn pick_from_json(v: &Value) -> Option<PickRecord> {
         flange_pregrasp_position: p3(&b["pregrasp_flange"]["position_m"])?,
         camera_position: p3(&b["camera"]["position_m"])?,
         camera_orientation_xyzw: q4(&b["camera"]["orientation_xyzw"])?,
-        reserved: [0; 3],
+        reserved: [0; 2],
     })
 }
 
@@ -122,6 +125,12 @@ mod tests {
         assert_eq!(back, p);
         let v: Value = serde_json::from_str(&text).unwrap();
         assert_eq!(v["base"]["calibrated"], true);
+        assert_eq!(v["fallback"], false);
+        // A fallback-tier pick says so, and keeps saying so through its JSON.
+        let weak = PickRecord { fallback: 1, ..p };
+        let v = pick_json(9, &weak);
+        assert_eq!(v["fallback"], true);
+        assert_eq!(pick_from_json(&v).unwrap(), weak);
         let m = &v["base"]["tcp"]["matrix"];
         assert_eq!(m[3], json!([0.0, 0.0, 0.0, 1.0]));
         assert!((m[0][3].as_f64().unwrap() - p.base_position[0] as f64).abs() < 1e-6);

@@ -86,8 +86,9 @@ pub fn pick_records(
         .iter()
         .take(max)
         .enumerate()
-        .map(|(rank, p)| {
-            PickRecord::new(
+        .map(|(rank, p)| PickRecord {
+            fallback: u32::from(selection.fallback),
+            ..PickRecord::new(
                 &p.workspace_from_gripper,
                 &p.pregrasp,
                 &configs[p.configuration_index].contact,

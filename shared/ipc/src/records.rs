@@ -99,8 +99,11 @@ pub struct PickRecord {
     pub camera_position: [f32; 3],
     /// The camera's orientation in the robot base frame, quaternion xyzw.
     pub camera_orientation_xyzw: [f32; 4],
+    /// 1 if the pick comes from selection's fallback tier (`[selection.fallback]`: nothing on the
+    /// frame passed the primary quality and collision-score thresholds), else 0.
+    pub fallback: u32,
     /// Reserved, zero.
-    pub reserved: [u32; 3],
+    pub reserved: [u32; 2],
 }
 
 fn xyzw(q: &UnitQuaternion<f64>) -> [f32; 4] {
@@ -151,7 +154,8 @@ impl PickRecord {
             flange_pregrasp_position: position(&pre.flange),
             camera_position: position(&base.camera_in_base),
             camera_orientation_xyzw: xyzw(&base.camera_in_base.rotation),
-            reserved: [0; 3],
+            fallback: 0,
+            reserved: [0; 2],
         }
     }
 

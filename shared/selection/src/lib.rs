@@ -25,9 +25,11 @@
 //! (quality by default), then collision score, and cut to [`SelectionConfig::top_k`].
 #![warn(missing_docs)]
 
+pub mod fallback;
 pub mod order;
 pub mod overlap;
 
+pub use fallback::FallbackThresholds;
 pub use order::{grasp_centre, PickOrder};
 pub use overlap::boxes_overlap;
 
@@ -117,6 +119,12 @@ pub struct SelectionConfig {
     /// the paper's frame only (and then not written, so stored configurations keep their form).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub tcp_lifts_m: Vec<f32>,
+    /// Looser score thresholds tried when no configuration passes `min_quality` and
+    /// `min_collision_score` (every geometric check stays); picks made under them are marked
+    /// ([`Selection::fallback`]). `None` (default): the paper's thresholds only (and then not
+    /// written, so stored configurations keep their form).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fallback: Option<FallbackThresholds>,
 }
 
 /// `SelectionConfig::baseline_tolerance_deg`'s default, degrees.
@@ -145,6 +153,7 @@ impl Default for SelectionConfig {
             pick_order: PickOrder::Quality,
             baseline_tolerance_deg: DEFAULT_BASELINE_TOLERANCE_DEG,
             tcp_lifts_m: Vec::new(),
+            fallback: None,
         }
     }
 }
@@ -203,6 +212,9 @@ impl SelectionConfig {
         )?;
         c.occupancy.validate()?;
         check_tcp_lifts(&c.tcp_lifts_m, "tcp_lifts_m")?;
+        if let Some(f) = &c.fallback {
+            f.validate(c)?;
+        }
         Ok(())
     }
 }
@@ -325,8 +337,13 @@ pub struct Selection {
     /// Picks, best first (`pick_order`, then collision score), at most `top_k`, at least
     /// `pick_spacing_m` apart.
     pub picks: Vec<SelectedGrasp>,
-    /// Why the other configurations and approaches were rejected.
+    /// Why the other configurations and approaches were rejected (in the pass whose picks these
+    /// are: the fallback tier's when [`Selection::fallback`]).
     pub rejected: RejectionCounts,
+    /// The picks come from the fallback tier ([`SelectionConfig::fallback`]): nothing passed the
+    /// primary score thresholds.
+    #[serde(default)]
+    pub fallback: bool,
 }
 
 /// Checks single configurations and approaches against one bin and one observed scene.
@@ -564,8 +581,32 @@ pub fn select_with_occupancy(
     select_from(configs, occupancy, bin, gripper, cfg, |_| true)
 }
 
-/// The selection loop behind [`select_filtered`] and [`select_with_occupancy`].
+/// The selection behind [`select_filtered`] and [`select_with_occupancy`]: one pass at the
+/// primary thresholds, and a second at [`SelectionConfig::fallback`]'s when the first picks nothing.
 fn select_from(
+    configs: &[GraspConfiguration],
+    occupancy: Option<&OccupancyGrid>,
+    bin: &BinModel,
+    gripper: &GripperModel,
+    cfg: &SelectionConfig,
+    mut pregrasp_free: impl FnMut(&SelectedGrasp) -> bool,
+) -> Result<Selection, SelectionError> {
+    let first = select_pass(configs, occupancy, bin, gripper, cfg, &mut pregrasp_free)?;
+    match &cfg.fallback {
+        Some(loose) if first.picks.is_empty() => {
+            let second_cfg = loose.applied_to(cfg);
+            let second = select_pass(configs, occupancy, bin, gripper, &second_cfg, pregrasp_free)?;
+            Ok(Selection {
+                fallback: true,
+                ..second
+            })
+        }
+        _ => Ok(first),
+    }
+}
+
+/// One selection pass at `cfg`'s thresholds.
+fn select_pass(
     configs: &[GraspConfiguration],
     occupancy: Option<&OccupancyGrid>,
     bin: &BinModel,
@@ -637,5 +678,9 @@ fn select_from(
             .then(a.configuration_index.cmp(&b.configuration_index))
     });
     picks.truncate(cfg.top_k);
-    Ok(Selection { picks, rejected })
+    Ok(Selection {
+        picks,
+        rejected,
+        fallback: false,
+    })
 }

@@ -3,8 +3,8 @@ use nalgebra::{Point2, Point3, Vector3};
 use psgrasp_fusion::NormalGrid;
 use psgrasp_geometry::{BinModel, GraspConfiguration, GripperModel, Workspace, N_APPROACHES};
 use psgrasp_selection::{
-    select, select_filtered, GraspChecker, PickOrder, RejectionReason, SelectionConfig,
-    SelectionError,
+    select, select_filtered, FallbackThresholds, GraspChecker, PickOrder, RejectionReason,
+    SelectionConfig, SelectionError,
 };
 use psgrasp_test_support::synthetic::{Primitive, SyntheticScene};
 
@@ -610,13 +610,19 @@ fn tcp_lifts_outside_their_range_are_refused_by_name() {
 }
 
 #[test]
-fn the_default_config_writes_no_lifts_or_tolerance_so_stored_configurations_keep_their_form() {
+fn the_default_config_writes_no_lifts_tolerance_or_fallback_so_stored_configurations_keep_their_form(
+) {
     let text = toml::to_string(&SelectionConfig::default()).unwrap();
     assert!(!text.contains("tcp_lifts_m"), "{text}");
     assert!(!text.contains("baseline_tolerance_deg"), "{text}");
+    assert!(!text.contains("fallback"), "{text}");
     let raised = SelectionConfig {
         tcp_lifts_m: vec![0.003, 0.006],
         baseline_tolerance_deg: 12.5,
+        fallback: Some(FallbackThresholds {
+            min_quality: 0.3,
+            min_collision_score: 0.2,
+        }),
         ..SelectionConfig::default()
     };
     assert!(toml::to_string(&raised)
@@ -624,4 +630,67 @@ fn the_default_config_writes_no_lifts_or_tolerance_so_stored_configurations_keep
         .contains("baseline_tolerance_deg = 12.5"));
     let back: SelectionConfig = toml::from_str(&toml::to_string(&raised).unwrap()).unwrap();
     assert_eq!(back, raised);
+}
+
+#[test]
+fn the_fallback_tier_picks_only_when_nothing_passes_the_primary_thresholds() {
+    let grid = scene(&[]);
+    let loose = FallbackThresholds {
+        min_quality: 0.25,
+        min_collision_score: 0.25,
+    };
+    let with_fallback = SelectionConfig {
+        fallback: Some(loose),
+        ..SelectionConfig::default()
+    };
+    // Under the paper's 0.5: a low collision score, a low quality; both geometrically free.
+    let low_score = config([0.20, 0.25, 0.06], 0.9, &DOWN, 0.3);
+    let low_quality = config([0.37, 0.25, 0.06], 0.4, &DOWN, 0.9);
+    // Below even the fallback's thresholds.
+    let hopeless = config([0.288, 0.35, 0.06], 0.2, &DOWN, 0.1);
+    let weak = [low_score, low_quality, hopeless];
+
+    // Off (the paper's protocol): nothing.
+    let sel = run(&weak, &grid, &SelectionConfig::default());
+    assert!(sel.picks.is_empty() && !sel.fallback);
+    // On: the two weak-but-free grasps, marked, in quality order; the rejections are the fallback pass's.
+    let sel = run(&weak, &grid, &with_fallback);
+    assert!(sel.fallback);
+    let picked: Vec<usize> = sel.picks.iter().map(|p| p.configuration_index).collect();
+    assert_eq!(picked, vec![0, 1], "{:?}", sel.rejected);
+    assert_eq!(sel.rejected.quality, 1, "{:?}", sel.rejected);
+
+    // A grasp that passes the primary thresholds: the fallback tier is not used at all.
+    let strong = config([0.288, 0.25, 0.06], 0.9, &DOWN, 0.9);
+    let sel = run(&[low_score, strong, low_quality], &grid, &with_fallback);
+    assert!(!sel.fallback);
+    let picked: Vec<usize> = sel.picks.iter().map(|p| p.configuration_index).collect();
+    assert_eq!(picked, vec![1]);
+
+    // The fallback relaxes scores only: a weak grasp whose fingers sit in a bin wall stays refused.
+    let in_wall = GraspConfiguration {
+        baseline: Vector3::y(),
+        ..config([0.288, 0.100, 0.06], 0.9, &DOWN, 0.3)
+    };
+    let sel = run(&[in_wall], &grid, &with_fallback);
+    assert!(sel.picks.is_empty() && sel.fallback);
+    assert_eq!(sel.rejected.bin_collision, 2, "{:?}", sel.rejected);
+
+    // A fallback stricter than the primary tier is a configuration error.
+    let stricter = SelectionConfig {
+        fallback: Some(FallbackThresholds {
+            min_quality: 0.6,
+            min_collision_score: 0.25,
+        }),
+        ..SelectionConfig::default()
+    };
+    let err = select(
+        &weak,
+        &grid.view(),
+        &bin(),
+        &GripperModel::default(),
+        &stricter,
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("fallback.min_quality"), "{err}");
 }

@@ -288,6 +288,10 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
             .iter()
             .filter_map(|d| d.min_quality.map(|q| (d.name.clone(), q)))
             .collect(),
+        selection_fallback: detectors
+            .iter()
+            .filter_map(|d| d.selection_fallback.map(|f| (d.name.clone(), f)))
+            .collect(),
     };
     let run = match RunDescription::read(&args.out)? {
         Some(mut stored) => {

@@ -34,6 +34,7 @@
 use crate::protocol::ProtocolConfig;
 use crate::EvalError;
 use psgrasp_inference::{BackendConfig, InferenceBackend, LearnedConfig};
+use psgrasp_selection::{FallbackThresholds, SelectionConfig};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::{Path, PathBuf};
 
@@ -154,6 +155,11 @@ pub struct DetectorSpec {
     /// (`--generate-scenes`, seeds never reported), never on the test set.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub min_quality: Option<f32>,
+    /// Sets the protocol's `[selection.fallback]` for this detector only: looser score
+    /// thresholds tried when nothing passes the paper's (not the paper's protocol; a row with it
+    /// is labelled as such, its thresholds chosen on generated scenes of seeds never reported).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub selection_fallback: Option<FallbackThresholds>,
 }
 
 /// The detector list file: `[[detector]]` tables.
@@ -173,6 +179,7 @@ impl DetectorSpec {
             label: Some("Analytic antipodal (GPD-style)".into()),
             backend: BackendConfig::Analytic(Default::default()).into(),
             min_quality: None,
+            selection_fallback: None,
         }
     }
 
@@ -189,6 +196,7 @@ impl DetectorSpec {
             })
             .into(),
             min_quality: None,
+            selection_fallback: None,
         }
     }
 
@@ -201,6 +209,7 @@ impl DetectorSpec {
             // One runtime thread: the evaluation runs scenes in parallel (`--jobs`).
             backend: BackendConfig::for_model_dir(&dir, 1).into(),
             min_quality: None,
+            selection_fallback: None,
         }
     }
 
@@ -218,6 +227,19 @@ impl DetectorSpec {
                     reason: format!("min_quality {q} must be in [0, 1]"),
                 });
             }
+        }
+        if let Some(f) = &self.selection_fallback {
+            let primary = SelectionConfig {
+                min_quality: self
+                    .min_quality
+                    .unwrap_or(SelectionConfig::default().min_quality),
+                ..SelectionConfig::default()
+            };
+            f.validate(&primary)
+                .map_err(|e| EvalError::InvalidDetector {
+                    name: self.name.clone(),
+                    reason: format!("selection_fallback: {e}"),
+                })?;
         }
         let ok = !self.name.is_empty()
             && self.name.len() <= 64
@@ -247,12 +269,15 @@ impl DetectorSpec {
         }
     }
 
-    /// The protocol this detector runs under: `protocol` with [`DetectorSpec::min_quality`]
-    /// applied to the cell's selection.
+    /// The protocol this detector runs under: `protocol` with [`DetectorSpec::min_quality`] and
+    /// [`DetectorSpec::selection_fallback`] applied to the cell's selection.
     pub fn protocol(&self, protocol: &ProtocolConfig) -> ProtocolConfig {
         let mut p = protocol.clone();
         if let Some(q) = self.min_quality {
             p.scenes.cell.selection.min_quality = q;
+        }
+        if let Some(f) = self.selection_fallback {
+            p.scenes.cell.selection.fallback = Some(f);
         }
         p
     }
@@ -445,6 +470,33 @@ mod tests {
             let json = serde_json::to_string(&d.backend).unwrap();
             let back: DetectorBackend = serde_json::from_str(&json).unwrap();
             assert_eq!(back, d.backend);
+        }
+    }
+
+    #[test]
+    fn a_detector_s_selection_fallback_reaches_its_protocol_only() {
+        let list = DetectorList::from_toml(
+            "[[detector]]\nname = \"strict\"\nbackend = { kind = \"analytic\" }\n\
+             [[detector]]\nname = \"loose\"\nbackend = { kind = \"analytic\" }\n\
+             selection_fallback = { min_quality = 0.3, min_collision_score = 0.2 }\n",
+        )
+        .unwrap();
+        let protocol = ProtocolConfig::default();
+        assert_eq!(list.detectors[0].protocol(&protocol), protocol);
+        let loose = list.detectors[1].protocol(&protocol);
+        let f = loose.scenes.cell.selection.fallback.unwrap();
+        assert_eq!((f.min_quality, f.min_collision_score), (0.3, 0.2));
+        assert_eq!(loose.scenes.cell.selection.min_quality, 0.5);
+        // Stricter than the paper's 0.5, or an unknown key: refused when the list is read.
+        for bad in [
+            "{ min_quality = 0.7, min_collision_score = 0.2 }",
+            "{ min_quality = 0.3, min_colision_score = 0.2 }",
+        ] {
+            let text = format!(
+                "[[detector]]\nname = \"x\"\nbackend = {{ kind = \"analytic\" }}\n\
+                 selection_fallback = {bad}\n"
+            );
+            assert!(DetectorList::from_toml(&text).is_err(), "{bad}");
         }
     }
 

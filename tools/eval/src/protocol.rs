@@ -178,6 +178,10 @@ pub struct AttemptRecord {
     /// physics check ([`OracleConfig::physics_check_max_width_m`]; 0 when off).
     #[serde(default)]
     pub labels_failed_physics: usize,
+    /// The pick came from selection's fallback tier (`[selection.fallback]`: nothing passed the
+    /// primary score thresholds on this frame).
+    #[serde(default)]
+    pub fallback: bool,
     /// The depth scale the correction found on this frame (`None`: correction off, or nothing
     /// to go by); applied when it is off by at least `depth_scale.min_correction`.
     #[serde(default)]
@@ -593,6 +597,7 @@ pub fn clear_scene(
             target,
             pregrasps_skipped: skipped_in_simulation,
             labels_failed_physics: failed_physics,
+            fallback: picks.fallback,
             depth_scale: scale.map(|s| s.scale),
             render_ms,
             fusion_ms,

@@ -16,6 +16,7 @@ use crate::detectors::DetectorBackend;
 use crate::protocol::{AttemptRecord, ProtocolConfig, SceneSummary};
 use crate::EvalError;
 use psgrasp_datagen::Difficulty;
+use psgrasp_selection::FallbackThresholds;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
 use std::io::Write;
@@ -91,6 +92,10 @@ pub struct RunDescription {
     /// by name; absent names ran with the protocol's.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub min_quality: BTreeMap<String, f32>,
+    /// Detectors that ran with their own `[selection.fallback]`
+    /// (`DetectorSpec::selection_fallback`), by name.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub selection_fallback: BTreeMap<String, FallbackThresholds>,
 }
 
 impl RunDescription {
@@ -144,7 +149,8 @@ impl RunDescription {
             return Err(mismatch("protocol settings".into()));
         }
         for (name, cfg) in &other.detectors {
-            let same_override = self.min_quality.get(name) == other.min_quality.get(name);
+            let same_override = self.min_quality.get(name) == other.min_quality.get(name)
+                && self.selection_fallback.get(name) == other.selection_fallback.get(name);
             match self.detectors.get(name) {
                 Some(old) if old != cfg || !same_override => {
                     return Err(mismatch(format!("settings of detector `{name}`")))
@@ -154,6 +160,9 @@ impl RunDescription {
                     self.detectors.insert(name.clone(), cfg.clone());
                     if let Some(q) = other.min_quality.get(name) {
                         self.min_quality.insert(name.clone(), *q);
+                    }
+                    if let Some(f) = other.selection_fallback.get(name) {
+                        self.selection_fallback.insert(name.clone(), *f);
                     }
                 }
             }
@@ -371,6 +380,7 @@ pub(crate) mod tests {
             target: None,
             pregrasps_skipped: 0,
             labels_failed_physics: 0,
+            fallback: false,
             depth_scale: None,
             render_ms: 1.0,
             fusion_ms: 2.0,
@@ -474,6 +484,7 @@ pub(crate) mod tests {
             protocol: ProtocolConfig::default(),
             detectors: BTreeMap::from([("analytic".to_string(), BackendConfig::default().into())]),
             min_quality: BTreeMap::new(),
+            selection_fallback: BTreeMap::new(),
         };
         let mut stored = base.clone();
         let mut more = base.clone();

@@ -1,0 +1,91 @@
+//! The fallback tier: looser score thresholds tried only when no configuration passes the paper's.
+//!
+//! A detector's quality and collision scores are its own estimates; when none of a frame's
+//! configurations reaches the thresholds (the paper's 0.5) while objects remain, a cell would
+//! rather try the best grasp that still passes every *geometric* check (bin, observed scene,
+//! pre-grasp, approach path, tilt) than stop. [`FallbackThresholds`] names those looser score
+//! thresholds; the selection marks picks made under them ([`crate::Selection::fallback`]) so a
+//! controller can treat them differently (e.g. slower approach, or ask for a new view first).
+
+use psgrasp_geometry::check_setting;
+use serde::{Deserialize, Serialize};
+
+use crate::{SelectionConfig, SelectionError};
+
+/// Score thresholds of the fallback tier (each at most the primary one).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FallbackThresholds {
+    /// Configurations with a lower antipodal quality are rejected in the fallback tier.
+    pub min_quality: f32,
+    /// Approaches with a lower collision score are rejected in the fallback tier.
+    pub min_collision_score: f32,
+}
+
+impl FallbackThresholds {
+    /// Both thresholds lie in [0, 1] and no higher than the primary tier's (a fallback that is
+    /// stricter than the first pass could never pick anything the first pass refused).
+    pub fn validate(&self, primary: &SelectionConfig) -> Result<(), SelectionError> {
+        check_setting(
+            (0.0..=primary.min_quality).contains(&self.min_quality),
+            "fallback.min_quality",
+            "must lie in [0, min_quality]",
+        )?;
+        check_setting(
+            (0.0..=primary.min_collision_score).contains(&self.min_collision_score),
+            "fallback.min_collision_score",
+            "must lie in [0, min_collision_score]",
+        )?;
+        Ok(())
+    }
+
+    /// `primary` with these thresholds and no further fallback: the second pass's settings.
+    pub fn applied_to(&self, primary: &SelectionConfig) -> SelectionConfig {
+        SelectionConfig {
+            min_quality: self.min_quality,
+            min_collision_score: self.min_collision_score,
+            fallback: None,
+            ..primary.clone()
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_fallback_stricter_than_the_primary_tier_is_refused() {
+        let primary = SelectionConfig::default();
+        let ok = FallbackThresholds {
+            min_quality: 0.2,
+            min_collision_score: 0.5,
+        };
+        assert!(ok.validate(&primary).is_ok());
+        for bad in [(0.6, 0.2), (0.2, 0.7), (-0.1, 0.2), (0.2, f32::NAN)] {
+            let f = FallbackThresholds {
+                min_quality: bad.0,
+                min_collision_score: bad.1,
+            };
+            assert!(f.validate(&primary).is_err(), "{bad:?} accepted");
+        }
+    }
+
+    #[test]
+    fn the_second_pass_takes_only_the_score_thresholds() {
+        let primary = SelectionConfig {
+            top_k: 3,
+            fallback: Some(FallbackThresholds {
+                min_quality: 0.25,
+                min_collision_score: 0.2,
+            }),
+            ..SelectionConfig::default()
+        };
+        let second = primary.fallback.unwrap().applied_to(&primary);
+        assert_eq!(second.min_quality, 0.25);
+        assert_eq!(second.min_collision_score, 0.2);
+        assert_eq!(second.fallback, None);
+        assert_eq!(second.top_k, 3);
+        assert_eq!(second.clearance, primary.clearance);
+    }
+}
