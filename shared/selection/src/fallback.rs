@@ -4,7 +4,8 @@
 //! configurations reaches the thresholds (the paper's 0.5) while objects remain, a cell would
 //! rather try the best grasp that still passes every *geometric* check (bin, observed scene,
 //! pre-grasp, approach path, tilt) than stop. [`FallbackThresholds`] names those looser score
-//! thresholds; the selection marks picks made under them ([`crate::Selection::fallback`]) so a
+//! thresholds, and keeps contacts away from the side walls in that tier (there the collision
+//! score is what tells an object's grasp from a grasp of the bin's wall or rim); the selection marks picks made under them ([`crate::Selection::fallback`]) so a
 //! controller can treat them differently (e.g. slower approach, or ask for a new view first).
 
 use psgrasp_geometry::check_setting;
@@ -20,6 +21,18 @@ pub struct FallbackThresholds {
     pub min_quality: f32,
     /// Approaches with a lower collision score are rejected in the fallback tier.
     pub min_collision_score: f32,
+    /// In the fallback tier, contacts closer than this to a side wall's inner face are rejected,
+    /// metres (`SelectionConfig::min_contact_wall_distance_m`): at the walls and on the rim the
+    /// collision score is what tells a grasp of an object from a grasp of the bin.
+    #[serde(default = "default_wall_distance")]
+    pub min_contact_wall_distance_m: f32,
+}
+
+/// [`FallbackThresholds::min_contact_wall_distance_m`]'s default, metres.
+pub const DEFAULT_FALLBACK_WALL_DISTANCE_M: f32 = 0.015;
+
+fn default_wall_distance() -> f32 {
+    DEFAULT_FALLBACK_WALL_DISTANCE_M
 }
 
 impl FallbackThresholds {
@@ -36,6 +49,11 @@ impl FallbackThresholds {
             "fallback.min_collision_score",
             "must lie in [0, min_collision_score]",
         )?;
+        check_setting(
+            (0.0..0.2).contains(&self.min_contact_wall_distance_m),
+            "fallback.min_contact_wall_distance_m",
+            "must lie in [0, 0.2) m",
+        )?;
         Ok(())
     }
 
@@ -44,6 +62,9 @@ impl FallbackThresholds {
         SelectionConfig {
             min_quality: self.min_quality,
             min_collision_score: self.min_collision_score,
+            min_contact_wall_distance_m: self
+                .min_contact_wall_distance_m
+                .max(primary.min_contact_wall_distance_m),
             fallback: None,
             ..primary.clone()
         }
@@ -60,12 +81,21 @@ mod tests {
         let ok = FallbackThresholds {
             min_quality: 0.2,
             min_collision_score: 0.5,
+            min_contact_wall_distance_m: 0.0,
         };
         assert!(ok.validate(&primary).is_ok());
-        for bad in [(0.6, 0.2), (0.2, 0.7), (-0.1, 0.2), (0.2, f32::NAN)] {
+        for bad in [
+            (0.6, 0.2, 0.01),
+            (0.2, 0.7, 0.01),
+            (-0.1, 0.2, 0.01),
+            (0.2, f32::NAN, 0.01),
+            (0.2, 0.2, -0.01),
+            (0.2, 0.2, 0.5),
+        ] {
             let f = FallbackThresholds {
                 min_quality: bad.0,
                 min_collision_score: bad.1,
+                min_contact_wall_distance_m: bad.2,
             };
             assert!(f.validate(&primary).is_err(), "{bad:?} accepted");
         }
@@ -78,12 +108,14 @@ mod tests {
             fallback: Some(FallbackThresholds {
                 min_quality: 0.25,
                 min_collision_score: 0.2,
+                min_contact_wall_distance_m: 0.01,
             }),
             ..SelectionConfig::default()
         };
         let second = primary.fallback.unwrap().applied_to(&primary);
         assert_eq!(second.min_quality, 0.25);
         assert_eq!(second.min_collision_score, 0.2);
+        assert_eq!(second.min_contact_wall_distance_m, 0.01);
         assert_eq!(second.fallback, None);
         assert_eq!(second.top_k, 3);
         assert_eq!(second.clearance, primary.clearance);

@@ -94,6 +94,13 @@ pub struct SelectionConfig {
     pub bin_margin_m: f32,
     /// Contacts may lie at most this far outside the bin's inner volume, metres.
     pub bin_contact_tolerance_m: f32,
+    /// Contacts closer than this to a side wall's inner face are rejected too
+    /// ([`RejectionReason::ContactOutsideBin`]), metres; 0 (default): only
+    /// `bin_contact_tolerance_m` applies (and then not written, so stored configurations keep
+    /// their form). The fallback tier sets it: where the learned collision score is not trusted,
+    /// grasps on and at the walls are left out.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub min_contact_wall_distance_m: f32,
     /// Check the gripper against the bin walls and floor.
     pub check_bin_collision: bool,
     /// Check the gripper against the observed scene (occupied voxels of the grid).
@@ -130,6 +137,10 @@ pub struct SelectionConfig {
 /// `SelectionConfig::baseline_tolerance_deg`'s default, degrees.
 pub const DEFAULT_BASELINE_TOLERANCE_DEG: f32 = 20.0;
 
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
+}
+
 fn is_default_baseline_tolerance(deg: &f32) -> bool {
     *deg == DEFAULT_BASELINE_TOLERANCE_DEG
 }
@@ -146,6 +157,7 @@ impl Default for SelectionConfig {
             clearance: HandClearance::default(),
             bin_margin_m: 0.003,
             bin_contact_tolerance_m: 0.005,
+            min_contact_wall_distance_m: 0.0,
             check_bin_collision: true,
             check_scene_collision: true,
             occupancy: OccupancyConfig::default(),
@@ -198,6 +210,11 @@ impl SelectionConfig {
         check_setting(
             metric(c.bin_contact_tolerance_m),
             "bin_contact_tolerance_m",
+            "must lie in [0, 1) m",
+        )?;
+        check_setting(
+            metric(c.min_contact_wall_distance_m),
+            "min_contact_wall_distance_m",
             "must lie in [0, 1) m",
         )?;
         check_setting(
@@ -425,8 +442,15 @@ impl<'a> GraspChecker<'a> {
     fn inside_bin(&self, p: &Point3<f32>) -> bool {
         let d = p - self.bin.floor_center;
         let tol = self.cfg.bin_contact_tolerance_m;
+        let wall = self.cfg.min_contact_wall_distance_m;
+        // Half the side extent a contact may reach: past the wall's face by the tolerance, or
+        // short of it by the wall distance when one is set.
+        let side = if wall > 0.0 { -wall } else { tol };
         let [lx, ly, lz] = self.bin.inner_size_m;
-        d.x.abs() <= 0.5 * lx + tol && d.y.abs() <= 0.5 * ly + tol && d.z >= -tol && d.z <= lz + tol
+        d.x.abs() <= 0.5 * lx + side
+            && d.y.abs() <= 0.5 * ly + side
+            && d.z >= -tol
+            && d.z <= lz + tol
     }
 
     /// True if the gripper at `pose`, open at `opening`, hits the bin or the observed scene.

@@ -616,12 +616,14 @@ fn the_default_config_writes_no_lifts_tolerance_or_fallback_so_stored_configurat
     assert!(!text.contains("tcp_lifts_m"), "{text}");
     assert!(!text.contains("baseline_tolerance_deg"), "{text}");
     assert!(!text.contains("fallback"), "{text}");
+    assert!(!text.contains("wall_distance"), "{text}");
     let raised = SelectionConfig {
         tcp_lifts_m: vec![0.003, 0.006],
         baseline_tolerance_deg: 12.5,
         fallback: Some(FallbackThresholds {
             min_quality: 0.3,
             min_collision_score: 0.2,
+            min_contact_wall_distance_m: 0.01,
         }),
         ..SelectionConfig::default()
     };
@@ -638,6 +640,7 @@ fn the_fallback_tier_picks_only_when_nothing_passes_the_primary_thresholds() {
     let loose = FallbackThresholds {
         min_quality: 0.25,
         min_collision_score: 0.25,
+        min_contact_wall_distance_m: 0.0,
     };
     let with_fallback = SelectionConfig {
         fallback: Some(loose),
@@ -676,11 +679,32 @@ fn the_fallback_tier_picks_only_when_nothing_passes_the_primary_thresholds() {
     assert!(sel.picks.is_empty() && sel.fallback);
     assert_eq!(sel.rejected.bin_collision, 2, "{:?}", sel.rejected);
 
+    // Its wall distance: a weak grasp 40 mm from the −y wall, closing along the wall (the hand,
+    // 63 mm thick, clears it), is taken by a fallback without one and left by one that keeps
+    // contacts 50 mm off.
+    let by_wall = config([0.288, 0.128, 0.06], 0.9, &DOWN, 0.3);
+    let sel = run(&[by_wall], &grid, &with_fallback);
+    assert_eq!(sel.picks.len(), 1, "{:?}", sel.rejected);
+    let keep_off = SelectionConfig {
+        fallback: Some(FallbackThresholds {
+            min_contact_wall_distance_m: 0.05,
+            ..loose
+        }),
+        ..SelectionConfig::default()
+    };
+    let sel = run(&[by_wall], &grid, &keep_off);
+    assert!(sel.picks.is_empty() && sel.fallback);
+    assert_eq!(sel.rejected.contact_outside_bin, 1, "{:?}", sel.rejected);
+    // The primary tier keeps no wall distance: a strong grasp there is picked.
+    let strong_by_wall = config([0.288, 0.128, 0.06], 0.9, &DOWN, 0.9);
+    assert_eq!(run(&[strong_by_wall], &grid, &keep_off).picks.len(), 1);
+
     // A fallback stricter than the primary tier is a configuration error.
     let stricter = SelectionConfig {
         fallback: Some(FallbackThresholds {
             min_quality: 0.6,
             min_collision_score: 0.25,
+            min_contact_wall_distance_m: 0.0,
         }),
         ..SelectionConfig::default()
     };
