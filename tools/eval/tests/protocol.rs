@@ -37,6 +37,7 @@ fn oracle() -> DetectorSpec {
         label: None,
         backend: DetectorBackend::Oracle,
         min_quality: None,
+        selection_fallback: None,
     }
 }
 
