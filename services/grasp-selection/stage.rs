@@ -230,3 +230,50 @@ pub fn run(args: StageArgs) -> Result<()> {
     )?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Isometry3, Point3, Vector3};
+    use psgrasp_selection::SelectedGrasp;
+
+    #[test]
+    fn pick_records_say_whether_the_selection_fell_back() {
+        let config = GraspConfiguration {
+            contact: Point3::new(0.2, 0.25, 0.06),
+            baseline: Vector3::x(),
+            collision_scores: [0.3; psgrasp_geometry::N_APPROACHES],
+            width: 0.04,
+            quality: 0.9,
+            kappa: 25.0,
+        };
+        let pose = Isometry3::translation(0.22, 0.25, 0.06);
+        let pick = SelectedGrasp {
+            workspace_from_gripper: pose,
+            pregrasp: Isometry3::translation(0.22, 0.25, 0.16),
+            pregrasp_distance_m: 0.1,
+            width: 0.04,
+            opening_m: 0.08,
+            quality: 0.9,
+            collision_score: 0.3,
+            configuration_index: 0,
+            approach_index: 8,
+        };
+        let base = psgrasp_geometry::RobotConfig::default()
+            .resolve(0.0095)
+            .unwrap()
+            .base_frame(&Isometry3::identity());
+        for fallback in [false, true] {
+            let selection = Selection {
+                picks: vec![pick, pick],
+                rejected: Default::default(),
+                fallback,
+            };
+            let records = pick_records(&selection, &[config], 1, &base);
+            assert_eq!(records.len(), 1);
+            assert_eq!(records[0].fallback, u32::from(fallback));
+            assert_eq!(records[0].reserved, [0; 2]);
+            assert_eq!(records[0].approach_index, 8);
+        }
+    }
+}
