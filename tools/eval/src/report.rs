@@ -73,6 +73,12 @@ pub struct CellMetrics {
     /// Failed attempts by cause ([`failure_cause`]).
     #[serde(default)]
     pub failure_causes: BTreeMap<String, usize>,
+    /// Attempts whose pick came from selection's fallback tier (`[selection.fallback]`).
+    #[serde(default)]
+    pub fallback_attempts: usize,
+    /// Of those, the successful ones.
+    #[serde(default)]
+    pub fallback_successes: usize,
     /// Objects left in the bin when the scenes ended, by kind.
     #[serde(default)]
     pub left_by_kind: BTreeMap<String, usize>,
@@ -241,6 +247,8 @@ pub fn summarize(
                 outcomes: BTreeMap::new(),
                 approach_touches: 0,
                 failure_causes: BTreeMap::new(),
+                fallback_attempts: 0,
+                fallback_successes: 0,
                 left_by_kind: BTreeMap::new(),
                 left_near_wall: 0,
                 started_by_zone: [0; 3],
@@ -291,6 +299,10 @@ pub fn summarize(
                     RecordLine::Attempt { key, attempt } if mine(key) => {
                         *c.outcomes.entry(snake(&attempt.outcome)).or_default() += 1;
                         c.approach_touches += usize::from(attempt.approach_contact);
+                        if attempt.fallback {
+                            c.fallback_attempts += 1;
+                            c.fallback_successes += usize::from(attempt.outcome.is_success());
+                        }
                         if !attempt.outcome.is_success() {
                             *c.failure_causes
                                 .entry(failure_cause(attempt).to_string())
@@ -431,6 +443,24 @@ impl Summary {
                 c.approach_touches,
                 fmt_map(&c.failure_causes),
             );
+        }
+        if self.cells.iter().any(|c| c.fallback_attempts > 0) {
+            let _ = writeln!(
+                s,
+                "\n## Picks from the selection's fallback tier\n\nAttempts whose pick came from `[selection.fallback]` (nothing on the frame passed the primary score thresholds), and how many held.\n\n| Detector | Level | attempts that fell back | of all attempts | held |\n|---|---|---|---|---|"
+            );
+            for c in self.cells.iter().filter(|c| c.fallback_attempts > 0) {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} | {} ({:.0} %) |",
+                    self.label(&c.detector),
+                    level_name(c.level),
+                    c.fallback_attempts,
+                    c.attempts,
+                    c.fallback_successes,
+                    100.0 * c.fallback_successes as f64 / c.fallback_attempts as f64,
+                );
+            }
         }
         let _ = writeln!(
             s,
@@ -743,6 +773,34 @@ mod tests {
         assert!(s
             .markdown(&[0])
             .contains("| approach_contact 1, nothing_held 1, success 2 | 2 |"));
+    }
+
+    #[test]
+    fn attempts_from_the_fallback_tier_are_counted_and_reported() {
+        let attempt = |outcome: &str, fallback: &str| {
+            serde_json::from_str::<RecordLine>(&format!(
+                r#"{{"type":"attempt","detector":"a","level":"easy","seed":0,"scene":0,"attempt":0,"objects_before":2,"configurations":5,"quality":0.9,"collision_score":0.3,"approach_index":3,"width_m":0.03,"opening_m":0.05,"outcome":"{outcome}","lifted":0,"lost":0,"final_opening_m":0.0{fallback},"render_ms":1.0,"fusion_ms":1.0,"inference_ms":1.0,"selection_ms":1.0,"execution_ms":4.0}}"#
+            ))
+            .unwrap()
+        };
+        let detectors = [("a".to_string(), "A".to_string())];
+        // Records without the field (older runs, or the fallback off): no section.
+        let plain = vec![attempt("success", ""), scene(0, 0, 2, 1, 1)];
+        let s = summarize(&plain, &detectors, &[Difficulty::Easy], &[0], 1);
+        assert_eq!(s.cells[0].fallback_attempts, 0);
+        assert!(!s.markdown(&[0]).contains("fallback tier"));
+        let lines = vec![
+            attempt("success", r#","fallback":false"#),
+            attempt("success", r#","fallback":true"#),
+            attempt("nothing_held", r#","fallback":true"#),
+            attempt("nothing_held", r#","fallback":true"#),
+            scene(0, 0, 3, 4, 2),
+        ];
+        let s = summarize(&lines, &detectors, &[Difficulty::Easy], &[0], 1);
+        let c = &s.cells[0];
+        assert_eq!((c.fallback_attempts, c.fallback_successes), (3, 1));
+        let md = s.markdown(&[0]);
+        assert!(md.contains("| A | Easy | 3 | 4 | 1 (33 %) |"), "{md}");
     }
 
     #[test]
