@@ -34,7 +34,7 @@
 use crate::protocol::ProtocolConfig;
 use crate::EvalError;
 use psgrasp_inference::{BackendConfig, InferenceBackend, LearnedConfig};
-use psgrasp_selection::{FallbackThresholds, SelectionConfig};
+use psgrasp_selection::FallbackThresholds;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::{Path, PathBuf};
 
@@ -228,14 +228,14 @@ impl DetectorSpec {
                 });
             }
         }
-        if let Some(f) = &self.selection_fallback {
-            let primary = SelectionConfig {
-                min_quality: self
-                    .min_quality
-                    .unwrap_or(SelectionConfig::default().min_quality),
-                ..SelectionConfig::default()
-            };
-            f.validate(&primary)
+        if self.selection_fallback.is_some() {
+            // Against the selection this detector gets under the default protocol (its own
+            // `min_quality` applied); the protocol it runs under is checked again when it selects.
+            self.protocol(&ProtocolConfig::default())
+                .scenes
+                .cell
+                .selection
+                .validate()
                 .map_err(|e| EvalError::InvalidDetector {
                     name: self.name.clone(),
                     reason: format!("selection_fallback: {e}"),
