@@ -271,7 +271,7 @@ def evaluate(net: GraspNet, ds: SceneDataset, cfg: Config, device: torch.device,
             best_ang, best = ang.min(1)
             angles.append(best_ang)
             counts.append(valid.sum(1))
-            n_valid = valid.sum(1).clamp_min(1)
+            n_valid = counts[-1].clamp_min(1)
             mean_angles.append(torch.where(valid, ang, torch.zeros_like(ang)).sum(1) / n_valid)
             earned.append(earned_kappa(cos, valid))
             kappa_hit.append(out["kappa"][h])
