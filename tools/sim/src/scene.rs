@@ -8,10 +8,11 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use parry3d::bounding_volume::{Aabb, BoundingVolume};
 use parry3d::math::Pose;
 use parry3d::partitioning::{Bvh, BvhBuildStrategy};
-use parry3d::query::{intersection_test, Ray};
-use parry3d::shape::{Cuboid, SharedShape};
+use parry3d::query::{intersection_test, PointQuery, Ray};
+use parry3d::shape::{Cuboid, SharedShape, TriMesh, TriMeshFlags};
 use psgrasp_geometry::{BinModel, CameraModel, DepthImage, OrientedBox};
 use serde::{Deserialize, Serialize};
+use std::sync::{Arc, OnceLock};
 
 /// An object placed in the scene.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -139,6 +140,9 @@ pub struct Scene {
     /// Solid shapes for box collision tests: the exact shape for primitives, the convex
     /// decomposition for meshes (a triangle mesh has no inside and is slow to test).
     collision_shapes: Vec<SharedShape>,
+    /// Per object, its triangle mesh with pseudo-normals (built on the first inside query): a
+    /// plain parry triangle mesh has no inside, so every point would count as outside.
+    oriented_meshes: Vec<OnceLock<Option<Arc<TriMesh>>>>,
     poses: Vec<Pose>,
     bvh: Bvh,
 }
@@ -201,6 +205,9 @@ impl Scene {
             .collect();
         let bvh = Bvh::from_leaves(BvhBuildStrategy::Binned, &aabbs);
         Ok(Self {
+            oriented_meshes: (0..description.objects.len())
+                .map(|_| OnceLock::new())
+                .collect(),
             description,
             shapes,
             collision_shapes,
@@ -284,16 +291,35 @@ impl Scene {
         let hit = shape.cast_ray_and_get_normal(&self.poses[index], &ray, max_dist, solid)?;
         // parry reports the normal facing the ray; make it the outward surface normal.
         let mut normal = vec_from_glam(hit.normal);
-        if !solid && normal.dot(dir) < 0.0 && shape.contains_point(&self.poses[index], ray.origin) {
+        if !solid && normal.dot(dir) < 0.0 && self.object_contains_point(index, origin) {
             normal = -normal;
         }
         Some((hit.time_of_impact, normal))
     }
 
-    /// True if `p` lies inside object `index` (false for an unknown index).
+    /// True if `p` lies inside object `index` (false for an unknown index). A mesh object's
+    /// inside is judged by its triangles' pseudo-normals (the side of the nearest feature).
     pub fn object_contains_point(&self, index: usize, p: &Point3<f32>) -> bool {
-        index < self.object_count()
-            && self.shapes[index].contains_point(&self.poses[index], point_to_glam(p))
+        if index >= self.object_count() {
+            return false;
+        }
+        let q = point_to_glam(p);
+        match self.oriented_mesh(index) {
+            Some(mesh) => mesh.contains_point(&self.poses[index], q),
+            None => self.shapes[index].contains_point(&self.poses[index], q),
+        }
+    }
+
+    /// Object `index`'s triangle mesh with pseudo-normals; `None` when it is not a mesh.
+    fn oriented_mesh(&self, index: usize) -> Option<&TriMesh> {
+        self.oriented_meshes[index]
+            .get_or_init(|| {
+                let mut mesh = self.shapes[index].as_trimesh()?.clone();
+                // Pseudo-normals need no particular topology: the call cannot fail for them.
+                mesh.set_flags(mesh.flags() | TriMeshFlags::ORIENTED).ok()?;
+                Some(Arc::new(mesh))
+            })
+            .as_deref()
     }
 
     /// Radius of a sphere about the object's origin that encloses object `index`.
@@ -345,7 +371,10 @@ impl Scene {
             return None;
         }
         let q = point_to_glam(p);
-        let proj = self.shapes[index].project_point(&self.poses[index], q, false);
+        let proj = match self.oriented_mesh(index) {
+            Some(mesh) => mesh.project_point(&self.poses[index], q, false),
+            None => self.shapes[index].project_point(&self.poses[index], q, false),
+        };
         let d = proj.point.distance(q);
         Some(if proj.is_inside { -d } else { d })
     }
@@ -616,6 +645,92 @@ mod tests {
         assert!(!scene.box_hits_object(&probe(0.045, 0.03), 0));
         assert!(!scene.box_hits_object(&probe(0.1, 0.005), 0));
         assert!(!scene.box_hits_object(&probe(0.0, 0.03), 1));
+    }
+
+    /// A closed 2·`half` cube as a triangle mesh resting on the bin floor (outward winding).
+    fn mesh_cube_scene(half: f32) -> Scene {
+        let v: Vec<[f32; 3]> = (0..8)
+            .map(|i| {
+                let c = |bit: u32| if i & bit != 0 { half } else { -half };
+                [c(1), c(2), c(4)]
+            })
+            .collect();
+        let triangles = vec![
+            [0, 2, 1],
+            [1, 2, 3],
+            [4, 5, 6],
+            [5, 7, 6], // −z, +z
+            [0, 1, 4],
+            [1, 5, 4],
+            [2, 6, 3],
+            [3, 6, 7], // −y, +y
+            [0, 4, 2],
+            [2, 4, 6],
+            [1, 3, 5],
+            [3, 7, 5], // −x, +x
+        ];
+        let mut meshes = MeshLibrary::default();
+        meshes.insert(
+            "cube",
+            crate::mesh::MeshAsset {
+                vertices: v.clone(),
+                triangles,
+                convex_parts: vec![v],
+                source_file: String::new(),
+            },
+        );
+        let bin = BinModel::default();
+        let spec = ObjectSpec {
+            name: "mesh-cube".into(),
+            kind: ObjectKind::Box,
+            parts: vec![Part {
+                object_from_part: Isometry3::identity(),
+                primitive: Primitive::Mesh {
+                    key: "cube".into(),
+                    scale: 1.0,
+                },
+            }],
+        };
+        let c = bin.floor_center;
+        let pose = Isometry3::translation(c.x, c.y, c.z + half);
+        Scene::with_meshes(
+            SceneDescription {
+                bin,
+                objects: vec![SceneObject {
+                    spec,
+                    workspace_from_object: pose,
+                }],
+            },
+            &meshes,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_mesh_object_has_an_inside() {
+        // A mesh object is tested by its triangles: points inside count as inside and their
+        // signed distance is negative, as for the same cube built from a primitive.
+        let (mesh, solid) = (mesh_cube_scene(0.03), cube_scene(0.03));
+        let c = solid.bin().floor_center;
+        let at = |x: f32, z: f32| Point3::new(c.x + x, c.y, c.z + z);
+        for (p, inside, distance) in [
+            (at(0.0, 0.03), true, -0.03),
+            (at(0.025, 0.03), true, -0.005),
+            (at(0.035, 0.03), false, 0.005),
+            (at(0.0, 0.07), false, 0.01),
+        ] {
+            for scene in [&mesh, &solid] {
+                assert_eq!(scene.object_contains_point(0, &p), inside, "{p:?}");
+                let d = scene.object_signed_distance(0, &p).unwrap();
+                assert!((d - distance).abs() < 1e-5, "{p:?}: {d}");
+            }
+        }
+        // A ray from inside the mesh leaves through the far face with its outward normal.
+        let (toi, n) = mesh
+            .cast_ray_object(0, &at(-0.029, 0.03), &Vector3::x(), 1.0, false)
+            .unwrap();
+        assert!((toi - 0.059).abs() < 1e-4, "toi {toi}");
+        assert!((n - Vector3::x()).norm() < 1e-4, "{n:?}");
     }
 
     #[test]
