@@ -99,10 +99,22 @@ fn check_grid_message(bytes: &[u8]) {
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
         .collect();
-    if let Ok(view) = psgrasp::inference::grid_view(&header, &payload) {
-        let voxels = view.workspace.voxel_count();
-        assert_eq!((view.normals.len(), view.tsdf.len()), (3 * voxels, voxels));
-        let _ = psgrasp_inference::validate_grid(&view);
+    // Without and with the frame's height map after the grid (`[selection.surface_check]`).
+    let with_map = psgrasp_selection::SurfaceCheck {
+        enabled: true,
+        cell_m: 0.02,
+        ..Default::default()
+    };
+    for check in [psgrasp_selection::SurfaceCheck::default(), with_map] {
+        if let Ok((view, map)) = psgrasp::inference::grid_view(&header, &payload, &check) {
+            let voxels = view.workspace.voxel_count();
+            assert_eq!((view.normals.len(), view.tsdf.len()), (3 * voxels, voxels));
+            assert_eq!(map.is_some(), check.enabled);
+            if let Some(map) = map {
+                assert_eq!(map.heights.len(), map.geometry.len());
+            }
+            let _ = psgrasp_inference::validate_grid(&view);
+        }
     }
 }
 

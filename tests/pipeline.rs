@@ -267,11 +267,14 @@ fn malformed_config_is_refused_with_a_clear_message() {
 /// (whose contacts are kept inside the bin by the cell's `perception.contact_region_inset_m`).
 #[test]
 fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
-    for kind in ["learned", "analytic"] {
+    // The third run also tests the fingers against the frame's height map, which travels after
+    // the normal grid in the same shared-memory message.
+    for kind in ["learned", "analytic", "learned-surface"] {
         let mut cfg = shipped_config(&format!("same-{kind}"));
         if kind == "analytic" {
             cfg.cell.inference = BackendConfig::Analytic(Default::default());
         }
+        cfg.cell.selection.surface_check.enabled = kind.ends_with("surface");
         cfg.camera.synthetic.objects = 8;
         cfg.pipeline.seed = 11;
         // A known hand-eye calibration: the camera 1.1 m above a base whose origin lies 0.4 m
@@ -329,6 +332,12 @@ fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
             &base,
         );
         assert!(!in_process.is_empty(), "{kind}: the frame must have picks");
+        assert_eq!(
+            detection.selection.rejected.surface_collision > 0,
+            cfg.cell.selection.surface_check.enabled,
+            "{kind}: the height map refuses some approaches exactly when enabled: {:?}",
+            detection.selection.rejected
+        );
         assert_eq!(
             outcome.picks, in_process,
             "{kind}: pipeline vs in-process chain"

@@ -60,11 +60,12 @@ impl GraspSelection<'_> {
         configs: &[GraspConfiguration],
         grid: &(FrameHeader, Vec<f32>),
     ) -> Result<Vec<PickRecord>, StepFailure> {
-        let view = grid_view(&grid.0, &grid.1)
-            .map_err(|m| StepFailure::new(StatusCode::ProtocolError, m))?;
+        let (view, surface) =
+            grid_view(&grid.0, &grid.1, &self.step.cell().selection.surface_check)
+                .map_err(|m| StepFailure::new(StatusCode::ProtocolError, m))?;
         let selection = self
             .step
-            .select(configs, &view)
+            .select(configs, &view, surface)
             .map_err(|e| StepFailure::new(StatusCode::SelectionFailed, e))?;
         let base = self
             .robot

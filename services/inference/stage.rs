@@ -2,36 +2,31 @@
 //! ([`psgrasp_perception::InferenceStep`]).
 use crate::stage::{run_stage, Output, Sent, Stage, StageArgs, StageContext, StepFailure};
 use anyhow::Result;
-use psgrasp_fusion::NormalGridView;
+use psgrasp_fusion::{HeightMapView, NormalGridView};
 use psgrasp_ipc::{FrameHeader, GraspRecord, MessageKind, Stamp, StatusCode};
-use psgrasp_perception::InferenceStep;
+use psgrasp_perception::{grid_message_views, InferenceStep};
+use psgrasp_selection::SurfaceCheck;
 use std::time::Duration;
 
-/// Checks a grid message's payload against its header and borrows it as a grid view.
-pub fn grid_view<'a>(h: &FrameHeader, payload: &'a [f32]) -> Result<NormalGridView<'a>, String> {
+/// Checks a grid message's payload against its header (and the cell's
+/// `[selection.surface_check]`, which decides whether the frame's height map follows the grid)
+/// and borrows it as its views.
+pub fn grid_view<'a>(
+    h: &FrameHeader,
+    payload: &'a [f32],
+    surface_check: &SurfaceCheck,
+) -> Result<(NormalGridView<'a>, Option<HeightMapView<'a>>), String> {
     let workspace = h.workspace();
     workspace.validate().map_err(|e| e.to_string())?;
-    let n = workspace.voxel_count();
-    if payload.len() != 4 * n {
-        return Err(format!(
-            "grid payload has {} values, header dims need {}",
-            payload.len(),
-            4 * n
-        ));
-    }
-    let (normals, tsdf) = payload.split_at(3 * n);
-    Ok(NormalGridView {
-        workspace,
-        normals,
-        tsdf,
-        truncation_m: h.truncation_m,
-    })
+    grid_message_views(&workspace, surface_check, payload, h.truncation_m)
 }
 
 /// The inference step.
 pub struct Inference {
     step: InferenceStep<'static>,
     seed: u64,
+    /// Whether the grid messages carry the frame's height map after the grid.
+    surface_check: SurfaceCheck,
 }
 
 impl Stage for Inference {
@@ -50,8 +45,8 @@ impl Stage for Inference {
         payload: &[f32],
         out: Output<'_, GraspRecord>,
     ) -> Result<Result<Sent, StepFailure>> {
-        let view = match grid_view(h, payload) {
-            Ok(v) => v,
+        let view = match grid_view(h, payload, &self.surface_check) {
+            Ok((v, _)) => v,
             Err(m) => return Ok(Err(StepFailure::new(StatusCode::ProtocolError, m))),
         };
         let configs = match self.step.infer(&view, self.seed) {
@@ -73,6 +68,7 @@ pub fn run(args: StageArgs) -> Result<()> {
     let mut stage = Inference {
         step,
         seed: ctx.config.pipeline.seed,
+        surface_check: ctx.config.cell.selection.surface_check,
     };
     let grid_sub = ctx.node.subscriber::<f32>(&names.grid())?;
     ctx.attach_inputs(&[(&grid_sub, ctx.config.pipeline.workers.fusion as usize)])?;

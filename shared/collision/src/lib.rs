@@ -8,8 +8,10 @@
 #![warn(missing_docs)]
 
 pub mod occupancy;
+pub mod surface;
 
 pub use occupancy::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
+pub use surface::cells_under_surface_in_box;
 
 use psgrasp_fusion::GridError;
 use psgrasp_geometry::GeometryError;

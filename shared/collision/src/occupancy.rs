@@ -103,16 +103,18 @@ enum Slab {
 }
 
 /// A box grown by a margin, prepared for column queries.
-struct GrownBox {
+pub(crate) struct GrownBox {
     centre: Point3<f32>,
     slabs: [Slab; 3],
     /// Workspace-frame bounds of the grown box.
-    lo: Point3<f32>,
-    hi: Point3<f32>,
+    pub(crate) lo: Point3<f32>,
+    pub(crate) hi: Point3<f32>,
 }
 
 impl GrownBox {
-    fn new(b: &OrientedBox, margin: f32) -> Option<Self> {
+    /// `b` grown by `margin` on every side (a negative margin shrinks it); `None` for a
+    /// non-finite box or one shrunk below nothing.
+    pub(crate) fn new(b: &OrientedBox, margin: f32) -> Option<Self> {
         let half = [
             b.half_extents.x + margin,
             b.half_extents.y + margin,
@@ -153,7 +155,7 @@ impl GrownBox {
 
     /// The z interval of the vertical line through (x, y) inside the box, if any.
     #[inline]
-    fn z_interval(&self, x: f32, y: f32) -> Option<(f32, f32)> {
+    pub(crate) fn z_interval(&self, x: f32, y: f32) -> Option<(f32, f32)> {
         let (dx, dy) = (x - self.centre.x, y - self.centre.y);
         let (mut zlo, mut zhi) = (f32::NEG_INFINITY, f32::INFINITY);
         for slab in &self.slabs {

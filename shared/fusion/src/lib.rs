@@ -21,6 +21,7 @@
 mod config;
 mod depth_png;
 mod depth_scale;
+mod height_map;
 mod normals;
 mod plane;
 mod tsdf;
@@ -31,6 +32,7 @@ pub use depth_png::{
     decode_depth_png, load_depth_png, load_depth_png_sized, save_depth_png, DepthPngError,
 };
 pub use depth_scale::{correct_depth_scale, estimate_depth_scale, DepthScale, DepthScaleConfig};
+pub use height_map::{write_height_map, HeightMapGeometry, HeightMapView, NO_HEIGHT};
 pub use plane::{
     fit_support_plane, workspace_camera_from_plane, PlacementConfig, Plane, PlaneFitConfig,
 };

@@ -1,9 +1,12 @@
 //! The steps of the chain and the chain itself.
 use crate::config::{CellConfig, InvalidSetting};
-use psgrasp_fusion::{correct_depth_scale, DepthScale, FusionError, NormalGridView, TsdfVolume};
+use psgrasp_fusion::{
+    correct_depth_scale, write_height_map, DepthScale, FusionError, HeightMapGeometry,
+    HeightMapView, NormalGridView, TsdfVolume,
+};
 use psgrasp_geometry::{CameraModel, DepthImage, GraspConfiguration};
 use psgrasp_inference::{InferenceBackend, InferenceError};
-use psgrasp_selection::{select_filtered, SelectedGrasp, Selection, SelectionError};
+use psgrasp_selection::{select_observed, SelectedGrasp, Selection, SelectionError, SurfaceCheck};
 use std::borrow::Cow;
 use std::time::Instant;
 
@@ -43,20 +46,29 @@ pub struct DepthScaleOutcome {
 }
 
 /// grid-fusion's step: depth-scale correction (when enabled) and TSDF fusion into a volume that
-/// is reused from frame to frame.
+/// is reused from frame to frame; with `[selection.surface_check]` enabled, also the frame's
+/// height map, sent after the normal grid in the same message.
 #[derive(Debug)]
 pub struct FusionStep {
     volume: TsdfVolume,
     cell: CellConfig,
+    /// The height map's cells and the last frame's heights (`None`: not wanted).
+    height_map: Option<(HeightMapGeometry, Vec<f32>)>,
 }
 
 impl FusionStep {
     /// The step for `cell` (its workspace, bin, fusion and depth-scale settings).
     pub fn new(cell: &CellConfig) -> Result<Self, PerceptionError> {
         cell.validate()?;
+        let height_map = cell
+            .selection
+            .surface_check
+            .geometry(&cell.workspace)?
+            .map(|g| (g, vec![psgrasp_fusion::NO_HEIGHT; g.len()]));
         Ok(Self {
             volume: TsdfVolume::new(cell.workspace, &cell.fusion)?,
             cell: cell.clone(),
+            height_map,
         })
     }
 
@@ -80,12 +92,16 @@ impl FusionStep {
         };
         self.volume.reset();
         self.volume.integrate(&depth, camera)?;
+        if let Some((geometry, heights)) = &mut self.height_map {
+            write_height_map(&depth, camera, geometry, heights)?;
+        }
         Ok(scale)
     }
 
-    /// Values of the normal grid message: `3·N` normals then `N` TSDF values.
+    /// Values of the normal grid message: `3·N` normals then `N` TSDF values, then the height
+    /// map's cells when `[selection.surface_check]` is enabled ([`grid_message_views`]).
     pub fn grid_len(&self) -> usize {
-        4 * self.cell.workspace.voxel_count()
+        4 * self.cell.workspace.voxel_count() + self.height_map.as_ref().map_or(0, |m| m.1.len())
     }
 
     /// The TSDF truncation distance of the grid, metres.
@@ -96,9 +112,57 @@ impl FusionStep {
     /// Writes the fused normal grid into `out` ([`FusionStep::grid_len`] values: the network's
     /// `[4, X, Y, Z]` input, normals first), e.g. straight into a shared-memory loan.
     pub fn write_grid(&self, out: &mut [f32]) -> Result<(), PerceptionError> {
-        let (normals, tsdf) = out.split_at_mut(3 * self.cell.workspace.voxel_count());
-        Ok(self.volume.write_normal_grid(normals, tsdf)?)
+        if out.len() != self.grid_len() {
+            return Err(FusionError::BufferSize {
+                name: "grid message",
+                got: out.len(),
+                expected: self.grid_len(),
+            }
+            .into());
+        }
+        let n = self.cell.workspace.voxel_count();
+        let (grid, heights) = out.split_at_mut(4 * n);
+        let (normals, tsdf) = grid.split_at_mut(3 * n);
+        self.volume.write_normal_grid(normals, tsdf)?;
+        if let Some((_, map)) = &self.height_map {
+            heights.copy_from_slice(map);
+        }
+        Ok(())
     }
+}
+
+/// Borrows a grid message (`values`: the normal grid of `workspace`, then the height map when
+/// `surface_check` is enabled) as its views; an error names the length it should have had.
+pub fn grid_message_views<'g>(
+    workspace: &psgrasp_geometry::Workspace,
+    surface_check: &SurfaceCheck,
+    values: &'g [f32],
+    truncation_m: f32,
+) -> Result<(NormalGridView<'g>, Option<HeightMapView<'g>>), String> {
+    let n = workspace.voxel_count();
+    let geometry = surface_check
+        .geometry(workspace)
+        .map_err(|e| e.to_string())?;
+    let expected = 4 * n + geometry.map_or(0, |g| g.len());
+    if values.len() != expected {
+        return Err(format!(
+            "grid payload has {} values, the header's dims and [selection.surface_check] need {}",
+            values.len(),
+            expected
+        ));
+    }
+    let (grid, heights) = values.split_at(4 * n);
+    let (normals, tsdf) = grid.split_at(3 * n);
+    let view = NormalGridView {
+        workspace: *workspace,
+        normals,
+        tsdf,
+        truncation_m,
+    };
+    Ok((
+        view,
+        geometry.map(|geometry| HeightMapView { geometry, heights }),
+    ))
 }
 
 /// inference's step: the backend on a normal grid, the grasp set ranked by antipodal quality and
@@ -177,13 +241,20 @@ impl SelectionStep {
         Ok(Self { cell: cell.clone() })
     }
 
-    /// Picks from `configs` on the observed `grid`, best first.
+    /// The cell it selects for.
+    pub fn cell(&self) -> &CellConfig {
+        &self.cell
+    }
+
+    /// Picks from `configs` on the observed `grid` (and the frame's height map `surface` when
+    /// `[selection.surface_check]` is enabled), best first.
     pub fn select(
         &self,
         configs: &[GraspConfiguration],
         grid: &NormalGridView<'_>,
+        surface: Option<HeightMapView<'_>>,
     ) -> Result<Selection, PerceptionError> {
-        self.select_filtered(configs, grid, |_| true)
+        self.select_filtered(configs, grid, surface, |_| true)
     }
 
     /// [`SelectionStep::select`] with one more check after selection's own (the evaluation's
@@ -192,12 +263,14 @@ impl SelectionStep {
         &self,
         configs: &[GraspConfiguration],
         grid: &NormalGridView<'_>,
+        surface: Option<HeightMapView<'_>>,
         keep: impl FnMut(&SelectedGrasp) -> bool,
     ) -> Result<Selection, PerceptionError> {
         let c = &self.cell;
-        Ok(select_filtered(
+        Ok(select_observed(
             configs,
             grid,
+            surface,
             &c.bin,
             &c.gripper,
             &c.selection,
@@ -322,7 +395,17 @@ impl<'b> Perception<'b> {
         let depth_scale = self.fusion.fuse(Cow::Borrowed(depth), camera)?;
         self.fusion.write_grid(&mut self.grid)?;
         let fusion_ms = ms(t);
-        let grid = grid_view(&self.cell, &self.grid, self.fusion.truncation_m());
+        let (grid, surface) = grid_message_views(
+            &self.cell.workspace,
+            &self.cell.selection.surface_check,
+            &self.grid,
+            self.fusion.truncation_m(),
+        )
+        .map_err(|_| FusionError::BufferSize {
+            name: "grid message",
+            got: self.grid.len(),
+            expected: self.fusion.grid_len(),
+        })?;
         let t = Instant::now();
         let configurations = match proposer {
             Proposer::Backend => self
@@ -336,7 +419,7 @@ impl<'b> Perception<'b> {
         let t = Instant::now();
         let selection = self
             .selection
-            .select_filtered(&configurations, &grid, keep)?;
+            .select_filtered(&configurations, &grid, surface, keep)?;
         let selection_ms = ms(t);
         Ok(Detection {
             configurations,
@@ -348,17 +431,6 @@ impl<'b> Perception<'b> {
                 selection_ms,
             },
         })
-    }
-}
-
-/// Borrows a grid message's values (`3·N` normals, then `N` TSDF values) as a grid view.
-fn grid_view<'g>(cell: &CellConfig, values: &'g [f32], truncation_m: f32) -> NormalGridView<'g> {
-    let (normals, tsdf) = values.split_at(3 * cell.workspace.voxel_count());
-    NormalGridView {
-        workspace: cell.workspace,
-        normals,
-        tsdf,
-        truncation_m,
     }
 }
 

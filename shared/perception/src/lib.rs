@@ -21,7 +21,7 @@ mod chain;
 mod config;
 
 pub use chain::{
-    DepthScaleOutcome, Detection, DetectionTimings, FusionStep, InferenceStep, Perception,
-    PerceptionError, Proposer, SelectionStep,
+    grid_message_views, DepthScaleOutcome, Detection, DetectionTimings, FusionStep, InferenceStep,
+    Perception, PerceptionError, Proposer, SelectionStep,
 };
 pub use config::{CellConfig, ChainConfig, InvalidSetting, NoUnknownKeys};

@@ -3,7 +3,8 @@
 //! against the bin and the observed scene at the grasp pose, the pre-grasp pose and between them.
 
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
-use psgrasp_collision::{CollisionError, OccupancyGrid};
+use psgrasp_collision::{cells_under_surface_in_box, CollisionError, OccupancyGrid};
+use psgrasp_fusion::HeightMapView;
 use psgrasp_geometry::{
     at_first_passing_lift, BinModel, GraspConfiguration, GripperModel, OrientedBox, N_APPROACHES,
 };
@@ -18,6 +19,8 @@ pub struct GraspChecker<'a> {
     bin: BinModel,
     bin_boxes: [OrientedBox; 5],
     scene: Option<&'a OccupancyGrid>,
+    /// The frame's height map for [`SelectionConfig::surface_check`] (`None`: not tested).
+    surface: Option<HeightMapView<'a>>,
     cos_max_tilt: f32,
 }
 
@@ -52,8 +55,18 @@ impl<'a> GraspChecker<'a> {
             bin,
             bin_boxes: bin.boxes(),
             scene: scene.filter(|_| cfg.check_scene_collision),
+            surface: None,
             cos_max_tilt: cfg.max_approach_tilt_deg.to_radians().cos(),
         })
+    }
+
+    /// The same checker also testing the fingers at the grasp pose against `surface`, the frame's
+    /// height map, when [`SelectionConfig::surface_check`] is enabled (`None`: no such test).
+    pub fn with_surface(self, surface: Option<HeightMapView<'a>>) -> Self {
+        Self {
+            surface: surface.filter(|_| self.cfg.surface_check.enabled),
+            ..self
+        }
     }
 
     /// The per-configuration checks: validity, quality, width, contacts inside the bin.
@@ -194,6 +207,19 @@ impl<'a> GraspChecker<'a> {
                 .is_some()
             {
                 return Err(RejectionReason::ApproachPathCollision);
+            }
+        }
+        if let Some(map) = &self.surface {
+            let check = &self.cfg.surface_check;
+            let boxes = self.gripper.boxes(pose, opening);
+            let cells: usize = [&boxes[1], &boxes[2]]
+                .iter()
+                .map(|finger| {
+                    cells_under_surface_in_box(map, finger, check.margin_m, check.min_cells)
+                })
+                .sum();
+            if cells >= check.min_cells {
+                return Err(RejectionReason::SurfaceCollision);
             }
         }
         Ok(pregrasp)

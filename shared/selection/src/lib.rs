@@ -29,15 +29,17 @@ pub mod checker;
 pub mod fallback;
 pub mod order;
 pub mod overlap;
+pub mod surface;
 
 pub use checker::GraspChecker;
 pub use fallback::FallbackThresholds;
 pub use order::{grasp_centre, PickOrder};
 pub use overlap::boxes_overlap;
+pub use surface::SurfaceCheck;
 
 use nalgebra::Isometry3;
 use psgrasp_collision::{CollisionError, OccupancyConfig, OccupancyGrid};
-use psgrasp_fusion::NormalGridView;
+use psgrasp_fusion::{HeightMapView, NormalGridView};
 use psgrasp_geometry::{
     check_setting, check_tcp_lifts, BinModel, GraspConfiguration, GripperModel, HandClearance,
     N_APPROACHES,
@@ -62,6 +64,9 @@ pub enum SelectionError {
     /// The normal grid or the gripper model is invalid, or the occupancy could not be built.
     #[error(transparent)]
     Scene(#[from] CollisionError),
+    /// `surface_check` is enabled but no height map (or one of other cells) came with the grid.
+    #[error("surface_check is enabled but the frame's height map is {0}")]
+    HeightMap(&'static str),
 }
 
 impl From<psgrasp_geometry::OutOfRange> for SelectionError {
@@ -134,6 +139,10 @@ pub struct SelectionConfig {
     /// written, so stored configurations keep their form).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fallback: Option<FallbackThresholds>,
+    /// The fingers at the grasp pose against the depth frame's height map (off by default, and
+    /// then not written, so stored configurations keep their form).
+    #[serde(skip_serializing_if = "surface::is_default")]
+    pub surface_check: SurfaceCheck,
 }
 
 /// `SelectionConfig::baseline_tolerance_deg`'s default, degrees.
@@ -168,6 +177,7 @@ impl Default for SelectionConfig {
             baseline_tolerance_deg: DEFAULT_BASELINE_TOLERANCE_DEG,
             tcp_lifts_m: Vec::new(),
             fallback: None,
+            surface_check: SurfaceCheck::default(),
         }
     }
 }
@@ -234,6 +244,7 @@ impl SelectionConfig {
         if let Some(f) = &c.fallback {
             f.validate(c)?;
         }
+        c.surface_check.validate()?;
         Ok(())
     }
 }
@@ -262,6 +273,9 @@ pub enum RejectionReason {
     PregraspCollision,
     /// Gripper between the pre-grasp and the grasp pose overlaps the bin or the observed scene.
     ApproachPathCollision,
+    /// A finger at the grasp pose meets the depth frame's height map
+    /// ([`SelectionConfig::surface_check`]).
+    SurfaceCollision,
 }
 
 /// How many times each check failed. Per-configuration reasons count configurations; per-approach
@@ -289,6 +303,9 @@ pub struct RejectionCounts {
     pub pregrasp_collision: usize,
     /// See [`RejectionReason::ApproachPathCollision`].
     pub approach_path_collision: usize,
+    /// See [`RejectionReason::SurfaceCollision`].
+    #[serde(default)]
+    pub surface_collision: usize,
     /// Configurations with no approach left to try (all examined approaches rejected).
     pub no_valid_approach: usize,
     /// Configurations never examined because `top_k` better picks were already found.
@@ -322,6 +339,7 @@ impl RejectionCounts {
             RejectionReason::SceneCollision => &mut self.scene_collision,
             RejectionReason::PregraspCollision => &mut self.pregrasp_collision,
             RejectionReason::ApproachPathCollision => &mut self.approach_path_collision,
+            RejectionReason::SurfaceCollision => &mut self.surface_collision,
         }
     }
 }
@@ -389,20 +407,54 @@ pub fn select_filtered(
     cfg: &SelectionConfig,
     pregrasp_free: impl FnMut(&SelectedGrasp) -> bool,
 ) -> Result<Selection, SelectionError> {
+    select_observed(configs, grid, None, bin, gripper, cfg, pregrasp_free)
+}
+
+/// [`select_filtered`] with the frame's height map for [`SelectionConfig::surface_check`]; an
+/// enabled check without a map of its cells is an error (the check is never skipped silently).
+pub fn select_observed(
+    configs: &[GraspConfiguration],
+    grid: &NormalGridView<'_>,
+    surface: Option<HeightMapView<'_>>,
+    bin: &BinModel,
+    gripper: &GripperModel,
+    cfg: &SelectionConfig,
+    pregrasp_free: impl FnMut(&SelectedGrasp) -> bool,
+) -> Result<Selection, SelectionError> {
     cfg.validate()?;
+    let surface = if cfg.surface_check.enabled {
+        let map = surface.ok_or(SelectionError::HeightMap("missing"))?;
+        let expected = cfg
+            .surface_check
+            .geometry(&grid.workspace)
+            .map_err(|_| SelectionError::HeightMap("not of the grid's workspace"))?;
+        if expected != Some(map.geometry) || map.heights.len() != map.geometry.len() {
+            return Err(SelectionError::HeightMap(
+                "not of surface_check.cell_m over the grid's workspace",
+            ));
+        }
+        Some(map)
+    } else {
+        None
+    };
     let occupancy = if cfg.check_scene_collision {
         Some(OccupancyGrid::from_normal_grid(grid, &cfg.occupancy)?)
     } else {
         None
     };
-    select_from(
-        configs,
-        occupancy.as_ref(),
-        bin,
-        gripper,
-        cfg,
-        pregrasp_free,
-    )
+    let scene = ObservedScene {
+        occupancy: occupancy.as_ref(),
+        surface,
+    };
+    select_from(configs, scene, bin, gripper, cfg, pregrasp_free)
+}
+
+/// What selection tests the hand against besides the bin: the grid's occupied voxels and the
+/// frame's height map (either may be absent).
+#[derive(Debug, Clone, Copy, Default)]
+struct ObservedScene<'a> {
+    occupancy: Option<&'a OccupancyGrid>,
+    surface: Option<HeightMapView<'a>>,
 }
 
 /// [`select`] with a prebuilt occupancy grid (`None`: no scene check), e.g. shared with the
@@ -414,24 +466,28 @@ pub fn select_with_occupancy(
     gripper: &GripperModel,
     cfg: &SelectionConfig,
 ) -> Result<Selection, SelectionError> {
-    select_from(configs, occupancy, bin, gripper, cfg, |_| true)
+    let scene = ObservedScene {
+        occupancy,
+        surface: None,
+    };
+    select_from(configs, scene, bin, gripper, cfg, |_| true)
 }
 
 /// The selection behind [`select_filtered`] and [`select_with_occupancy`]: one pass at the
 /// primary thresholds, and a second at [`SelectionConfig::fallback`]'s when the first picks nothing.
 fn select_from(
     configs: &[GraspConfiguration],
-    occupancy: Option<&OccupancyGrid>,
+    scene: ObservedScene<'_>,
     bin: &BinModel,
     gripper: &GripperModel,
     cfg: &SelectionConfig,
     mut pregrasp_free: impl FnMut(&SelectedGrasp) -> bool,
 ) -> Result<Selection, SelectionError> {
-    let first = select_pass(configs, occupancy, bin, gripper, cfg, &mut pregrasp_free)?;
+    let first = select_pass(configs, scene, bin, gripper, cfg, &mut pregrasp_free)?;
     match &cfg.fallback {
         Some(loose) if first.picks.is_empty() => {
             let second_cfg = loose.applied_to(cfg);
-            let second = select_pass(configs, occupancy, bin, gripper, &second_cfg, pregrasp_free)?;
+            let second = select_pass(configs, scene, bin, gripper, &second_cfg, pregrasp_free)?;
             Ok(Selection {
                 fallback: true,
                 ..second
@@ -444,13 +500,14 @@ fn select_from(
 /// One selection pass at `cfg`'s thresholds.
 fn select_pass(
     configs: &[GraspConfiguration],
-    occupancy: Option<&OccupancyGrid>,
+    scene: ObservedScene<'_>,
     bin: &BinModel,
     gripper: &GripperModel,
     cfg: &SelectionConfig,
     mut pregrasp_free: impl FnMut(&SelectedGrasp) -> bool,
 ) -> Result<Selection, SelectionError> {
-    let checker = GraspChecker::new(cfg, *gripper, *bin, occupancy)?;
+    let checker =
+        GraspChecker::new(cfg, *gripper, *bin, scene.occupancy)?.with_surface(scene.surface);
     let mut order: Vec<usize> = (0..configs.len()).collect();
     // Priority descending (not finite: last, and rejected as invalid); ties by index.
     let cos_half_tolerance = (0.5 * cfg.baseline_tolerance_deg.to_radians()).cos();
