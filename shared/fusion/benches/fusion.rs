@@ -3,10 +3,13 @@
 //! Renders an analytic bin scene (floor, sphere, box) top-down with the test ray caster (`psgrasp_test_support::analytic`), then
 //! times `TsdfVolume::integrate` (into a freshly reset volume), `write_normal_grid` (into
 //! preallocated buffers), the whole frame (reset + integrate + extract) and the depth-scale
-//! estimate against a bin whose floor is the scene's (frame scaled by 1.02). Prints a Markdown
-//! table.
+//! estimate against a bin whose floor is the scene's (frame scaled by 1.02), and the frame's 2 mm
+//! height map (`[selection.surface_check]`). Prints a Markdown table.
 use nalgebra::Point3;
-use psgrasp_fusion::{estimate_depth_scale, DepthScaleConfig, FusionConfig, TsdfVolume};
+use psgrasp_fusion::{
+    estimate_depth_scale, write_height_map, DepthScaleConfig, FusionConfig, HeightMapGeometry,
+    TsdfVolume,
+};
 use psgrasp_geometry::{BinModel, CameraIntrinsics, CameraModel};
 use psgrasp_test_support::analytic::*;
 use std::time::Instant;
@@ -87,6 +90,16 @@ fn main() {
             t_scale.push(t0.elapsed().as_secs_f64() * 1e3);
             assert!(e.is_some_and(|e| (e.scale - 1.02).abs() < 1e-3), "{e:?}");
         }
+        // The 2 mm height map of the same frame (selection's surface check).
+        let geometry = HeightMapGeometry::new(&ws, 0.002).unwrap();
+        let mut heights = vec![0.0f32; geometry.len()];
+        let mut t_map = Vec::new();
+        for _ in 0..iterations {
+            let t0 = Instant::now();
+            write_height_map(&depth, &cam, &geometry, &mut heights).unwrap();
+            std::hint::black_box(&heights);
+            t_map.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
         let dims = ws.dims;
         let grid = format!(
             "{}×{}×{} @ {} mm",
@@ -100,6 +113,7 @@ fn main() {
             ("normal extraction", t_ext),
             ("total (reset+integrate+extract)", t_all),
             ("depth-scale estimate", t_scale),
+            ("height map (2 mm cells)", t_map),
         ] {
             let (mean, p50, p99, min) = stats(v);
             println!("| {name} | {grid} | {stage} | {mean:.3} | {p50:.3} | {p99:.3} | {min:.3} |");

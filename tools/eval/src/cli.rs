@@ -292,6 +292,10 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
             .iter()
             .filter_map(|d| d.selection_fallback.map(|f| (d.name.clone(), f)))
             .collect(),
+        selection_surface_check: detectors
+            .iter()
+            .filter_map(|d| d.selection_surface_check.map(|c| (d.name.clone(), c)))
+            .collect(),
     };
     let run = match RunDescription::read(&args.out)? {
         Some(mut stored) => {

@@ -34,7 +34,7 @@
 use crate::protocol::ProtocolConfig;
 use crate::EvalError;
 use psgrasp_inference::{BackendConfig, InferenceBackend, LearnedConfig};
-use psgrasp_selection::FallbackThresholds;
+use psgrasp_selection::{FallbackThresholds, SurfaceCheck};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::{Path, PathBuf};
 
@@ -160,6 +160,11 @@ pub struct DetectorSpec {
     /// is labelled as such, its thresholds chosen on generated scenes of seeds never reported).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub selection_fallback: Option<FallbackThresholds>,
+    /// Sets the protocol's `[selection.surface_check]` for this detector only (the fingers
+    /// against the depth frame's height map; not the paper's protocol, a row with it is labelled
+    /// as such).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub selection_surface_check: Option<SurfaceCheck>,
 }
 
 /// The detector list file: `[[detector]]` tables.
@@ -180,6 +185,7 @@ impl DetectorSpec {
             backend: BackendConfig::Analytic(Default::default()).into(),
             min_quality: None,
             selection_fallback: None,
+            selection_surface_check: None,
         }
     }
 
@@ -197,6 +203,7 @@ impl DetectorSpec {
             .into(),
             min_quality: None,
             selection_fallback: None,
+            selection_surface_check: None,
         }
     }
 
@@ -210,6 +217,7 @@ impl DetectorSpec {
             backend: BackendConfig::for_model_dir(&dir, 1).into(),
             min_quality: None,
             selection_fallback: None,
+            selection_surface_check: None,
         }
     }
 
@@ -228,7 +236,7 @@ impl DetectorSpec {
                 });
             }
         }
-        if self.selection_fallback.is_some() {
+        if self.selection_fallback.is_some() || self.selection_surface_check.is_some() {
             // Against the selection this detector gets under the default protocol (its own
             // `min_quality` applied); the protocol it runs under is checked again when it selects.
             self.protocol(&ProtocolConfig::default())
@@ -238,7 +246,7 @@ impl DetectorSpec {
                 .validate()
                 .map_err(|e| EvalError::InvalidDetector {
                     name: self.name.clone(),
-                    reason: format!("selection_fallback: {e}"),
+                    reason: format!("selection override: {e}"),
                 })?;
         }
         let ok = !self.name.is_empty()
@@ -269,8 +277,9 @@ impl DetectorSpec {
         }
     }
 
-    /// The protocol this detector runs under: `protocol` with [`DetectorSpec::min_quality`] and
-    /// [`DetectorSpec::selection_fallback`] applied to the cell's selection.
+    /// The protocol this detector runs under: `protocol` with [`DetectorSpec::min_quality`],
+    /// [`DetectorSpec::selection_fallback`] and [`DetectorSpec::selection_surface_check`] applied
+    /// to the cell's selection.
     pub fn protocol(&self, protocol: &ProtocolConfig) -> ProtocolConfig {
         let mut p = protocol.clone();
         if let Some(q) = self.min_quality {
@@ -278,6 +287,9 @@ impl DetectorSpec {
         }
         if let Some(f) = self.selection_fallback {
             p.scenes.cell.selection.fallback = Some(f);
+        }
+        if let Some(c) = self.selection_surface_check {
+            p.scenes.cell.selection.surface_check = c;
         }
         p
     }
@@ -495,6 +507,40 @@ mod tests {
             let text = format!(
                 "[[detector]]\nname = \"x\"\nbackend = {{ kind = \"analytic\" }}\n\
                  selection_fallback = {bad}\n"
+            );
+            assert!(DetectorList::from_toml(&text).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_detector_s_surface_check_reaches_its_protocol_only() {
+        let list = DetectorList::from_toml(
+            "[[detector]]\nname = \"plain\"\nbackend = { kind = \"analytic\" }\n\
+             [[detector]]\nname = \"fine\"\nbackend = { kind = \"analytic\" }\n\
+             selection_surface_check = { enabled = true, cell_m = 0.003 }\n",
+        )
+        .unwrap();
+        let protocol = ProtocolConfig::default();
+        assert_eq!(list.detectors[0].protocol(&protocol), protocol);
+        let check = list.detectors[1]
+            .protocol(&protocol)
+            .scenes
+            .cell
+            .selection
+            .surface_check;
+        assert!(check.enabled);
+        assert_eq!(
+            (check.cell_m, check.margin_m, check.min_cells),
+            (0.003, 0.001, 1)
+        );
+        // Out of range, or an unknown key: refused when the list is read.
+        for bad in [
+            "{ enabled = true, cell_m = 0.5 }",
+            "{ enabled = true, cel_m = 0.002 }",
+        ] {
+            let text = format!(
+                "[[detector]]\nname = \"x\"\nbackend = {{ kind = \"analytic\" }}\n\
+                 selection_surface_check = {bad}\n"
             );
             assert!(DetectorList::from_toml(&text).is_err(), "{bad}");
         }

@@ -16,7 +16,7 @@ use crate::detectors::DetectorBackend;
 use crate::protocol::{AttemptRecord, ProtocolConfig, SceneSummary};
 use crate::EvalError;
 use psgrasp_datagen::Difficulty;
-use psgrasp_selection::FallbackThresholds;
+use psgrasp_selection::{FallbackThresholds, SurfaceCheck};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
 use std::io::Write;
@@ -96,6 +96,10 @@ pub struct RunDescription {
     /// (`DetectorSpec::selection_fallback`), by name.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub selection_fallback: BTreeMap<String, FallbackThresholds>,
+    /// Detectors that ran with their own `[selection.surface_check]`
+    /// (`DetectorSpec::selection_surface_check`), by name.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub selection_surface_check: BTreeMap<String, SurfaceCheck>,
 }
 
 impl RunDescription {
@@ -150,7 +154,9 @@ impl RunDescription {
         }
         for (name, cfg) in &other.detectors {
             let same_override = self.min_quality.get(name) == other.min_quality.get(name)
-                && self.selection_fallback.get(name) == other.selection_fallback.get(name);
+                && self.selection_fallback.get(name) == other.selection_fallback.get(name)
+                && self.selection_surface_check.get(name)
+                    == other.selection_surface_check.get(name);
             match self.detectors.get(name) {
                 Some(old) if old != cfg || !same_override => {
                     return Err(mismatch(format!("settings of detector `{name}`")))
@@ -163,6 +169,9 @@ impl RunDescription {
                     }
                     if let Some(f) = other.selection_fallback.get(name) {
                         self.selection_fallback.insert(name.clone(), *f);
+                    }
+                    if let Some(c) = other.selection_surface_check.get(name) {
+                        self.selection_surface_check.insert(name.clone(), *c);
                     }
                 }
             }
@@ -485,6 +494,7 @@ pub(crate) mod tests {
             detectors: BTreeMap::from([("analytic".to_string(), BackendConfig::default().into())]),
             min_quality: BTreeMap::new(),
             selection_fallback: BTreeMap::new(),
+            selection_surface_check: BTreeMap::new(),
         };
         let mut stored = base.clone();
         let mut more = base.clone();

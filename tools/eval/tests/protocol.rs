@@ -38,6 +38,7 @@ fn oracle() -> DetectorSpec {
         backend: DetectorBackend::Oracle,
         min_quality: None,
         selection_fallback: None,
+        selection_surface_check: None,
     }
 }
 
