@@ -14,8 +14,10 @@
 //! ([`RejectionReason::Tilt`], the reachability cone), gripper at the grasp pose against the bin walls
 //! and floor ([`RejectionReason::BinCollision`], oriented box–box test) and against the observed
 //! scene ([`RejectionReason::SceneCollision`], the occupancy checker of `psgrasp-collision`), the
-//! pre-grasp pose backed off along −approach ([`RejectionReason::PregraspCollision`]) and poses
-//! between the two ([`RejectionReason::ApproachPathCollision`]).
+//! pre-grasp pose backed off along −approach ([`RejectionReason::PregraspCollision`]), poses
+//! between the two ([`RejectionReason::ApproachPathCollision`]), and, with
+//! [`SelectionConfig::surface_check`] enabled, the fingers at the grasp pose against the depth
+//! frame's height map ([`RejectionReason::SurfaceCollision`], [`surface`]).
 //!
 //! The gripper is checked open at `min(width + clearance.opening_clearance_m, max opening)`: the opening the
 //! robot should command ([`SelectedGrasp::opening_m`]). A configuration whose grasp centre lies
