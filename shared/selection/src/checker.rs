@@ -1,6 +1,7 @@
 //! The per-configuration and per-approach checks of the selection (see the crate docs for the
 //! order): validity, quality, width, contacts inside the bin; collision score, tilt, the gripper
-//! against the bin and the observed scene at the grasp pose, the pre-grasp pose and between them.
+//! against the bin and the observed scene at the grasp pose, the pre-grasp pose and between them,
+//! and the fingers at the grasp pose against the depth frame's height map (when enabled).
 
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 use psgrasp_collision::{cells_under_surface_in_box, CollisionError, OccupancyGrid};
