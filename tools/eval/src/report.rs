@@ -775,14 +775,17 @@ mod tests {
             .contains("| approach_contact 1, nothing_held 1, success 2 | 2 |"));
     }
 
+    /// An attempt record as written on disk, with `extra` fields (each led by a comma) appended.
+    fn attempt_line(outcome: &str, collision_score: f32, extra: &str) -> RecordLine {
+        serde_json::from_str::<RecordLine>(&format!(
+            r#"{{"type":"attempt","detector":"a","level":"easy","seed":0,"scene":0,"attempt":0,"objects_before":2,"configurations":5,"quality":0.9,"collision_score":{collision_score},"approach_index":3,"width_m":0.03,"opening_m":0.05,"outcome":"{outcome}","lifted":0,"lost":0,"final_opening_m":0.0{extra},"render_ms":1.0,"fusion_ms":1.0,"inference_ms":1.0,"selection_ms":1.0,"execution_ms":4.0}}"#
+        ))
+        .unwrap()
+    }
+
     #[test]
     fn attempts_from_the_fallback_tier_are_counted_and_reported() {
-        let attempt = |outcome: &str, fallback: &str| {
-            serde_json::from_str::<RecordLine>(&format!(
-                r#"{{"type":"attempt","detector":"a","level":"easy","seed":0,"scene":0,"attempt":0,"objects_before":2,"configurations":5,"quality":0.9,"collision_score":0.3,"approach_index":3,"width_m":0.03,"opening_m":0.05,"outcome":"{outcome}","lifted":0,"lost":0,"final_opening_m":0.0{fallback},"render_ms":1.0,"fusion_ms":1.0,"inference_ms":1.0,"selection_ms":1.0,"execution_ms":4.0}}"#
-            ))
-            .unwrap()
-        };
+        let attempt = |outcome: &str, fallback: &str| attempt_line(outcome, 0.3, fallback);
         let detectors = [("a".to_string(), "A".to_string())];
         // Records without the field (older runs, or the fallback off): no section.
         let plain = vec![attempt("success", ""), scene(0, 0, 2, 1, 1)];
@@ -807,12 +810,7 @@ mod tests {
     fn failed_attempts_are_counted_by_cause() {
         // Records as written on disk, with the touch and target of newer runs (the last has
         // neither: an older run).
-        let attempt = |outcome: &str, extra: &str| {
-            serde_json::from_str::<RecordLine>(&format!(
-                r#"{{"type":"attempt","detector":"a","level":"easy","seed":0,"scene":0,"attempt":0,"objects_before":2,"configurations":5,"quality":0.9,"collision_score":1.0,"approach_index":3,"width_m":0.03,"opening_m":0.05,"outcome":"{outcome}","lifted":0,"lost":0,"final_opening_m":0.0{extra},"render_ms":1.0,"fusion_ms":1.0,"inference_ms":1.0,"selection_ms":1.0,"execution_ms":4.0}}"#
-            ))
-            .unwrap()
-        };
+        let attempt = |outcome: &str, extra: &str| attempt_line(outcome, 1.0, extra);
         let target = |d: f32| {
             format!(r#","target":{{"name":"proc-001-box","kind":"box","tcp_distance_m":{d}}}"#)
         };
