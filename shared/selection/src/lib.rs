@@ -35,7 +35,7 @@ pub mod surface;
 
 pub use checker::GraspChecker;
 pub use fallback::FallbackThresholds;
-pub use order::{grasp_centre, PickOrder};
+pub use order::{grasp_centre, OrderSettings, PickOrder};
 pub use overlap::boxes_overlap;
 pub use surface::SurfaceCheck;
 
@@ -119,14 +119,19 @@ pub struct SelectionConfig {
     /// A configuration whose grasp centre lies closer than this to a pick already taken is
     /// passed over, metres (0: no spacing; picks may then be the same grasp millimetres apart).
     pub pick_spacing_m: f32,
-    /// Which picks come first: `quality` (the paper's), `confident-quality`, `topmost`, or
-    /// `centre-first`.
+    /// Which picks come first: `quality` (the paper's), `confident-quality`, `confident-first`,
+    /// `topmost`, or `centre-first`.
     pub pick_order: PickOrder,
     /// `confident-quality` only: a baseline counts as right within this angle of the predicted
     /// mean, degrees (the pick check's label match uses 20°). Not written at its default, so
     /// stored configurations (dataset manifests, evaluation runs) keep their form.
     #[serde(skip_serializing_if = "is_default_baseline_tolerance")]
     pub baseline_tolerance_deg: f32,
+    /// `confident-first` only: κ strictly above this counts as confident; set it to the model
+    /// card's `kappa0` (the floor its κ is clamped to; 25 for every model we ship). Not written at
+    /// its default.
+    #[serde(skip_serializing_if = "is_default_confident_kappa")]
+    pub confident_kappa_above: f32,
     /// An approach whose grasp pose, pre-grasp or path fails the collision checks with the tool
     /// centre point at the contacts' midpoint (the paper's grasp frame) is tried again with it
     /// raised these distances back along the approach, in order, metres: the contacts then meet
@@ -149,6 +154,13 @@ pub struct SelectionConfig {
 
 /// `SelectionConfig::baseline_tolerance_deg`'s default, degrees.
 pub const DEFAULT_BASELINE_TOLERANCE_DEG: f32 = 20.0;
+
+/// `SelectionConfig::confident_kappa_above`'s default: the paper's κ0, our model cards' floor.
+pub const DEFAULT_CONFIDENT_KAPPA_ABOVE: f32 = 25.0;
+
+fn is_default_confident_kappa(k: &f32) -> bool {
+    *k == DEFAULT_CONFIDENT_KAPPA_ABOVE
+}
 
 fn is_zero(v: &f32) -> bool {
     *v == 0.0
@@ -177,6 +189,7 @@ impl Default for SelectionConfig {
             pick_spacing_m: 0.05,
             pick_order: PickOrder::Quality,
             baseline_tolerance_deg: DEFAULT_BASELINE_TOLERANCE_DEG,
+            confident_kappa_above: DEFAULT_CONFIDENT_KAPPA_ABOVE,
             tcp_lifts_m: Vec::new(),
             fallback: None,
             surface_check: SurfaceCheck::default(),
@@ -240,6 +253,11 @@ impl SelectionConfig {
             c.baseline_tolerance_deg > 0.0 && c.baseline_tolerance_deg < 180.0,
             "baseline_tolerance_deg",
             "must lie in (0, 180)",
+        )?;
+        check_setting(
+            c.confident_kappa_above.is_finite() && c.confident_kappa_above >= 0.0,
+            "confident_kappa_above",
+            "must be finite and ≥ 0",
         )?;
         c.occupancy.validate()?;
         check_tcp_lifts(&c.tcp_lifts_m, "tcp_lifts_m")?;
@@ -512,10 +530,13 @@ fn select_pass(
         GraspChecker::new(cfg, *gripper, *bin, scene.occupancy)?.with_surface(scene.surface);
     let mut order: Vec<usize> = (0..configs.len()).collect();
     // Priority descending (not finite: last, and rejected as invalid); ties by index.
-    let cos_half_tolerance = (0.5 * cfg.baseline_tolerance_deg.to_radians()).cos();
+    let settings = OrderSettings {
+        cos_half_tolerance: (0.5 * cfg.baseline_tolerance_deg.to_radians()).cos(),
+        confident_kappa_above: cfg.confident_kappa_above,
+    };
     let priority: Vec<f32> = configs
         .iter()
-        .map(|c| cfg.pick_order.priority(c, bin, cos_half_tolerance))
+        .map(|c| cfg.pick_order.priority(c, bin, settings))
         .collect();
     let key = |i: usize| priority[i];
     order.sort_by(|&a, &b| key(b).total_cmp(&key(a)).then(a.cmp(&b)));

@@ -23,17 +23,40 @@ pub enum PickOrder {
     /// Configurations without a distribution (κ ≤ 0: analytic, VGN-style, oracle) keep their
     /// quality, and a constant κ (the wo κ ablation) keeps the quality order.
     ConfidentQuality,
+    /// Configurations whose concentration κ lies above
+    /// [`crate::SelectionConfig::confident_kappa_above`] (the model card's floor κ0) first, each
+    /// tier by antipodal quality: a κ clamped at its floor is the network saying it does not know
+    /// the baseline, and such picks hold less often. Configurations without a distribution and a
+    /// constant κ (the wo κ ablation) all fall in one tier and keep the quality order.
+    ConfidentFirst,
+}
+
+/// The order's parameters taken from [`crate::SelectionConfig`] once per selection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OrderSettings {
+    /// cos(tolerance / 2) for [`PickOrder::ConfidentQuality`].
+    pub cos_half_tolerance: f32,
+    /// κ strictly above this is confident for [`PickOrder::ConfidentFirst`].
+    pub confident_kappa_above: f32,
 }
 
 impl PickOrder {
-    /// The priority of configuration `c` in `bin` (higher first; not finite → last);
-    /// `cos_half_tolerance` = cos(tolerance / 2) for [`PickOrder::ConfidentQuality`].
-    pub fn priority(self, c: &GraspConfiguration, bin: &BinModel, cos_half_tolerance: f32) -> f32 {
+    /// The priority of configuration `c` in `bin` (higher first; not finite → last).
+    pub fn priority(self, c: &GraspConfiguration, bin: &BinModel, settings: OrderSettings) -> f32 {
         let p = grasp_centre(c);
         let v = match self {
             PickOrder::Quality => c.quality,
             PickOrder::ConfidentQuality => {
-                c.quality * baseline_confidence(c.kappa, cos_half_tolerance)
+                c.quality * baseline_confidence(c.kappa, settings.cos_half_tolerance)
+            }
+            // Quality lies in [0, 1], so the confident tier's priorities lie above all others.
+            PickOrder::ConfidentFirst => {
+                let tier = if c.kappa > settings.confident_kappa_above {
+                    CONFIDENT_TIER
+                } else {
+                    0.0
+                };
+                tier + c.quality
             }
             PickOrder::Topmost => p.z,
             PickOrder::CentreFirst => -(p.x - bin.floor_center.x).hypot(p.y - bin.floor_center.y),
@@ -45,6 +68,10 @@ impl PickOrder {
         }
     }
 }
+
+/// What [`PickOrder::ConfidentFirst`] adds to a confident configuration's quality (qualities lie
+/// in [0, 1]).
+const CONFIDENT_TIER: f32 = 2.0;
 
 /// P(angle(x, ν) ≤ θ) for x ~ PS(ν, κ) on S², with `cos_half_tolerance` = cos(θ/2): the
 /// marginal of t = ν·x has density ∝ (1 + t)^κ on [−1, 1], so the probability is
@@ -67,6 +94,13 @@ mod tests {
     use super::*;
     use nalgebra::Vector3;
 
+    fn settings(cos_half_tolerance: f32) -> OrderSettings {
+        OrderSettings {
+            cos_half_tolerance,
+            confident_kappa_above: 25.0,
+        }
+    }
+
     fn at(x: f32, y: f32, z: f32, quality: f32) -> GraspConfiguration {
         GraspConfiguration {
             contact: Point3::new(x, y, z),
@@ -84,7 +118,7 @@ mod tests {
         let c = bin.floor_center;
         let high_poor = at(c.x + 0.1, c.y, c.z + 0.2, 0.6);
         let low_good_central = at(c.x - 0.02, c.y, c.z + 0.05, 0.9);
-        let p = |o: PickOrder, g: &GraspConfiguration| o.priority(g, &bin, 0.98);
+        let p = |o: PickOrder, g: &GraspConfiguration| o.priority(g, &bin, settings(0.98));
         assert!(p(PickOrder::Quality, &low_good_central) > p(PickOrder::Quality, &high_poor));
         assert!(p(PickOrder::Topmost, &high_poor) > p(PickOrder::Topmost, &low_good_central));
         assert!(
@@ -97,8 +131,9 @@ mod tests {
             PickOrder::Topmost,
             PickOrder::CentreFirst,
             PickOrder::ConfidentQuality,
+            PickOrder::ConfidentFirst,
         ] {
-            assert_eq!(o.priority(&nan, &bin, 0.98), f32::NEG_INFINITY);
+            assert_eq!(o.priority(&nan, &bin, settings(0.98)), f32::NEG_INFINITY);
         }
     }
 
@@ -142,7 +177,9 @@ mod tests {
             kappa,
             ..at(c.x, c.y, c.z + 0.05, q)
         };
-        let p = |g: &GraspConfiguration| PickOrder::ConfidentQuality.priority(g, &bin, cos_half);
+        let p = |g: &GraspConfiguration| {
+            PickOrder::ConfidentQuality.priority(g, &bin, settings(cos_half))
+        };
         // Same quality: the sharper baseline first.
         assert!(p(&with(0.8, 80.0)) > p(&with(0.8, 25.0)));
         // A slightly lower quality with a far sharper baseline wins; a much lower one does not.
@@ -150,6 +187,26 @@ mod tests {
         assert!(p(&with(0.4, 100.0)) < p(&with(0.8, 25.0)));
         // One κ for all (the wo κ ablation) or none (analytic, VGN, oracle): the quality order.
         assert!(p(&with(0.9, 25.0)) > p(&with(0.8, 25.0)));
+        assert_eq!(p(&with(0.7, 0.0)), 0.7);
+    }
+
+    #[test]
+    fn confident_first_puts_every_kappa_above_the_floor_before_the_floor() {
+        let bin = BinModel::default();
+        let c = bin.floor_center;
+        let with = |q: f32, kappa: f32| GraspConfiguration {
+            kappa,
+            ..at(c.x, c.y, c.z + 0.05, q)
+        };
+        let p =
+            |g: &GraspConfiguration| PickOrder::ConfidentFirst.priority(g, &bin, settings(0.98));
+        // Just above the floor beats the best quality at the floor.
+        assert!(p(&with(0.51, 25.01)) > p(&with(1.0, 25.0)));
+        // Within a tier, quality decides.
+        assert!(p(&with(0.9, 26.0)) > p(&with(0.8, 90.0)));
+        assert!(p(&with(0.9, 25.0)) > p(&with(0.8, 25.0)));
+        // No distribution (κ = 0) or one κ for all: the quality order.
+        assert!(p(&with(0.9, 0.0)) > p(&with(0.8, 0.0)));
         assert_eq!(p(&with(0.7, 0.0)), 0.7);
     }
 }

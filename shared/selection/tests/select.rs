@@ -543,6 +543,47 @@ fn confident_quality_puts_a_sharp_baseline_before_a_slightly_better_uncertain_on
     assert!(format!("{:?}", bad.validate().unwrap_err()).contains("baseline_tolerance_deg"));
 }
 
+/// `confident-first` takes every configuration whose κ lies above the floor before any at the
+/// floor, each tier by quality; the floor is a setting, and without κ the quality order stays.
+#[test]
+fn confident_first_takes_kappa_above_the_floor_before_better_scored_floor_grasps() {
+    let grid = scene(&[]);
+    let c = bin().floor_center;
+    let mut configs = [
+        config([c.x - 0.15, c.y, c.z + 0.04], 0.95, &DOWN, 1.0),
+        config([c.x, c.y, c.z + 0.04], 0.6, &DOWN, 1.0),
+        config([c.x + 0.15, c.y, c.z + 0.04], 0.7, &DOWN, 1.0),
+    ];
+    configs[0].kappa = 25.0;
+    configs[1].kappa = 25.5;
+    configs[2].kappa = 40.0;
+    let order = |configs: &[GraspConfiguration], confident_kappa_above: f32| {
+        let cfg = SelectionConfig {
+            pick_order: PickOrder::ConfidentFirst,
+            confident_kappa_above,
+            ..SelectionConfig::default()
+        };
+        run(configs, &grid, &cfg)
+            .picks
+            .iter()
+            .map(|p| p.configuration_index)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(order(&configs, 25.0), vec![2, 1, 0]);
+    // A higher floor moves the κ 25.5 grasp into the lower tier.
+    assert_eq!(order(&configs, 30.0), vec![2, 0, 1]);
+    // No κ (analytic, VGN-style, oracle): the quality order.
+    for k in configs.iter_mut() {
+        k.kappa = 0.0;
+    }
+    assert_eq!(order(&configs, 25.0), vec![0, 2, 1]);
+    let bad = SelectionConfig {
+        confident_kappa_above: f32::NAN,
+        ..SelectionConfig::default()
+    };
+    assert!(format!("{:?}", bad.validate().unwrap_err()).contains("confident_kappa_above"));
+}
+
 #[test]
 fn a_grasp_low_over_the_floor_is_picked_with_the_tool_centre_point_raised() {
     // Contacts 6 mm above the floor in the middle of the bin: with the tool centre point there,

@@ -296,6 +296,10 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
             .iter()
             .filter_map(|d| d.selection_surface_check.map(|c| (d.name.clone(), c)))
             .collect(),
+        selection_pick_order: detectors
+            .iter()
+            .filter_map(|d| d.selection_pick_order.map(|o| (d.name.clone(), o)))
+            .collect(),
     };
     let run = match RunDescription::read(&args.out)? {
         Some(mut stored) => {

@@ -34,7 +34,7 @@
 use crate::protocol::ProtocolConfig;
 use crate::EvalError;
 use psgrasp_inference::{BackendConfig, InferenceBackend, LearnedConfig};
-use psgrasp_selection::{FallbackThresholds, SurfaceCheck};
+use psgrasp_selection::{FallbackThresholds, PickOrder, SurfaceCheck};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::{Path, PathBuf};
 
@@ -165,6 +165,10 @@ pub struct DetectorSpec {
     /// as such).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub selection_surface_check: Option<SurfaceCheck>,
+    /// Sets the protocol's `[selection] pick_order` for this detector only (the paper visits
+    /// configurations by quality; a row with another order is labelled as such).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub selection_pick_order: Option<PickOrder>,
 }
 
 /// The detector list file: `[[detector]]` tables.
@@ -186,6 +190,7 @@ impl DetectorSpec {
             min_quality: None,
             selection_fallback: None,
             selection_surface_check: None,
+            selection_pick_order: None,
         }
     }
 
@@ -204,6 +209,7 @@ impl DetectorSpec {
             min_quality: None,
             selection_fallback: None,
             selection_surface_check: None,
+            selection_pick_order: None,
         }
     }
 
@@ -218,6 +224,7 @@ impl DetectorSpec {
             min_quality: None,
             selection_fallback: None,
             selection_surface_check: None,
+            selection_pick_order: None,
         }
     }
 
@@ -236,7 +243,10 @@ impl DetectorSpec {
                 });
             }
         }
-        if self.selection_fallback.is_some() || self.selection_surface_check.is_some() {
+        if self.selection_fallback.is_some()
+            || self.selection_surface_check.is_some()
+            || self.selection_pick_order.is_some()
+        {
             // Against the selection this detector gets under the default protocol (its own
             // `min_quality` applied); the protocol it runs under is checked again when it selects.
             self.protocol(&ProtocolConfig::default())
@@ -278,8 +288,8 @@ impl DetectorSpec {
     }
 
     /// The protocol this detector runs under: `protocol` with [`DetectorSpec::min_quality`],
-    /// [`DetectorSpec::selection_fallback`] and [`DetectorSpec::selection_surface_check`] applied
-    /// to the cell's selection.
+    /// [`DetectorSpec::selection_fallback`], [`DetectorSpec::selection_surface_check`] and
+    /// [`DetectorSpec::selection_pick_order`] applied to the cell's selection.
     pub fn protocol(&self, protocol: &ProtocolConfig) -> ProtocolConfig {
         let mut p = protocol.clone();
         if let Some(q) = self.min_quality {
@@ -290,6 +300,9 @@ impl DetectorSpec {
         }
         if let Some(c) = self.selection_surface_check {
             p.scenes.cell.selection.surface_check = c;
+        }
+        if let Some(o) = self.selection_pick_order {
+            p.scenes.cell.selection.pick_order = o;
         }
         p
     }
@@ -544,6 +557,26 @@ mod tests {
             );
             assert!(DetectorList::from_toml(&text).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn a_detector_s_pick_order_reaches_its_protocol_only() {
+        let list = DetectorList::from_toml(
+            "[[detector]]\nname = \"plain\"\nbackend = { kind = \"analytic\" }\n\
+             [[detector]]\nname = \"sure\"\nbackend = { kind = \"analytic\" }\n\
+             selection_pick_order = \"confident-first\"\n",
+        )
+        .unwrap();
+        let protocol = ProtocolConfig::default();
+        assert_eq!(list.detectors[0].protocol(&protocol), protocol);
+        let sure = list.detectors[1].protocol(&protocol);
+        assert_eq!(
+            sure.scenes.cell.selection.pick_order,
+            PickOrder::ConfidentFirst
+        );
+        let text = "[[detector]]\nname = \"x\"\nbackend = { kind = \"analytic\" }\n\
+                    selection_pick_order = \"most-confident\"\n";
+        assert!(DetectorList::from_toml(text).is_err());
     }
 
     #[test]

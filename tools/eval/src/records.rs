@@ -16,7 +16,7 @@ use crate::detectors::DetectorBackend;
 use crate::protocol::{AttemptRecord, ProtocolConfig, SceneSummary};
 use crate::EvalError;
 use psgrasp_datagen::Difficulty;
-use psgrasp_selection::{FallbackThresholds, SurfaceCheck};
+use psgrasp_selection::{FallbackThresholds, PickOrder, SurfaceCheck};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
 use std::io::Write;
@@ -100,6 +100,10 @@ pub struct RunDescription {
     /// (`DetectorSpec::selection_surface_check`), by name.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub selection_surface_check: BTreeMap<String, SurfaceCheck>,
+    /// Detectors that ran with their own `[selection] pick_order`
+    /// (`DetectorSpec::selection_pick_order`), by name.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub selection_pick_order: BTreeMap<String, PickOrder>,
 }
 
 impl RunDescription {
@@ -156,7 +160,8 @@ impl RunDescription {
             let same_override = self.min_quality.get(name) == other.min_quality.get(name)
                 && self.selection_fallback.get(name) == other.selection_fallback.get(name)
                 && self.selection_surface_check.get(name)
-                    == other.selection_surface_check.get(name);
+                    == other.selection_surface_check.get(name)
+                && self.selection_pick_order.get(name) == other.selection_pick_order.get(name);
             match self.detectors.get(name) {
                 Some(old) if old != cfg || !same_override => {
                     return Err(mismatch(format!("settings of detector `{name}`")))
@@ -172,6 +177,9 @@ impl RunDescription {
                     }
                     if let Some(c) = other.selection_surface_check.get(name) {
                         self.selection_surface_check.insert(name.clone(), *c);
+                    }
+                    if let Some(o) = other.selection_pick_order.get(name) {
+                        self.selection_pick_order.insert(name.clone(), *o);
                     }
                 }
             }
@@ -495,6 +503,7 @@ pub(crate) mod tests {
             min_quality: BTreeMap::new(),
             selection_fallback: BTreeMap::new(),
             selection_surface_check: BTreeMap::new(),
+            selection_pick_order: BTreeMap::new(),
         };
         let mut stored = base.clone();
         let mut more = base.clone();

@@ -39,6 +39,7 @@ fn oracle() -> DetectorSpec {
         min_quality: None,
         selection_fallback: None,
         selection_surface_check: None,
+        selection_pick_order: None,
     }
 }
 
