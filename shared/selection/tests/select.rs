@@ -53,6 +53,15 @@ fn run(
     select(configs, &grid.view(), &bin(), &GripperModel::default(), cfg).unwrap()
 }
 
+/// The configuration indices of the picks `cfg` makes, best first.
+fn picked(configs: &[GraspConfiguration], grid: &NormalGrid, cfg: SelectionConfig) -> Vec<usize> {
+    run(configs, grid, &cfg)
+        .picks
+        .iter()
+        .map(|p| p.configuration_index)
+        .collect()
+}
+
 #[test]
 fn fingers_in_a_bin_wall_are_rejected_for_that_reason() {
     let grid = scene(&[]);
@@ -525,11 +534,7 @@ fn confident_quality_puts_a_sharp_baseline_before_a_slightly_better_uncertain_on
             baseline_tolerance_deg,
             ..SelectionConfig::default()
         };
-        let sel = run(&configs, &grid, &cfg);
-        sel.picks
-            .iter()
-            .map(|p| p.configuration_index)
-            .collect::<Vec<_>>()
+        picked(&configs, &grid, cfg)
     };
     assert_eq!(order(PickOrder::Quality, 20.0), vec![0, 1]);
     // 20°: 0.9 · 0.55 against 0.8 · 0.96.
@@ -563,11 +568,7 @@ fn confident_first_takes_kappa_above_the_floor_before_better_scored_floor_grasps
             confident_kappa_above,
             ..SelectionConfig::default()
         };
-        run(configs, &grid, &cfg)
-            .picks
-            .iter()
-            .map(|p| p.configuration_index)
-            .collect::<Vec<_>>()
+        picked(configs, &grid, cfg)
     };
     assert_eq!(order(&configs, 25.0), vec![2, 1, 0]);
     // A higher floor moves the κ 25.5 grasp into the lower tier.
