@@ -11,6 +11,7 @@ use psgrasp::sources::save_depth_npy;
 use psgrasp_config::{PipelineConfig, PoseConfig, SourceKind};
 use psgrasp_inference::BackendConfig;
 use psgrasp_ipc::{DropPolicy, Stage, Stamp, StatusCode};
+use psgrasp_selection::PickOrder;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
@@ -275,7 +276,9 @@ fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
             cfg.cell.inference = BackendConfig::Analytic(Default::default());
         }
         cfg.cell.selection.surface_check.enabled = kind.ends_with("surface");
-        cfg.camera.synthetic.objects = 8;
+        // Twelve objects: a frame whose picks differ between the quality order and the shipped
+        // cell's confident-first order (with eight, the best picks all lie above the floor).
+        cfg.camera.synthetic.objects = 12;
         cfg.pipeline.seed = 11;
         // A known hand-eye calibration: the camera 1.1 m above a base whose origin lies 0.4 m
         // to its side, looking down, turned 30° about the vertical.
@@ -332,6 +335,41 @@ fn the_evaluation_runs_exactly_what_the_pipeline_runs() {
             &base,
         );
         assert!(!in_process.is_empty(), "{kind}: the frame must have picks");
+        if kind.starts_with("learned") {
+            // The shipped cell takes the picks whose κ is above the model card's floor first,
+            // and the floor travels with the grasp set: this frame has configurations on both
+            // sides of it, so the pipeline's picks below match only if it arrived.
+            assert_eq!(cfg.cell.selection.pick_order, PickOrder::ConfidentFirst);
+            let at_floor = detection
+                .configurations
+                .iter()
+                .filter(|c| c.kappa <= c.kappa_floor)
+                .count();
+            assert!(
+                detection.configurations.iter().all(|c| c.kappa_floor > 0.0)
+                    && at_floor > 0
+                    && at_floor < detection.configurations.len(),
+                "{kind}: {at_floor} of {} configurations at the floor",
+                detection.configurations.len()
+            );
+            let mut by_quality = cfg.cell.clone();
+            by_quality.selection.pick_order = PickOrder::Quality;
+            let quality_picks = psgrasp_perception::Perception::new(&by_quality)
+                .unwrap()
+                .detect(&depth, &header.camera(), cfg.pipeline.seed)
+                .unwrap();
+            let order = |picks: &[psgrasp_selection::SelectedGrasp]| {
+                picks
+                    .iter()
+                    .map(|p| (p.configuration_index, p.approach_index))
+                    .collect::<Vec<_>>()
+            };
+            assert_ne!(
+                order(&quality_picks.selection.picks),
+                order(&detection.selection.picks),
+                "{kind}: the frame must tell the two orders apart"
+            );
+        }
         assert_eq!(
             detection.selection.rejected.surface_collision > 0,
             cfg.cell.selection.surface_check.enabled,

@@ -247,6 +247,7 @@ mod tests {
             width: 0.04,
             quality: 0.9,
             kappa: 25.0,
+            kappa_floor: 0.0,
         };
         let pose = Isometry3::translation(0.22, 0.25, 0.06);
         let pick = SelectedGrasp {

@@ -97,6 +97,15 @@ pub struct GraspConfiguration {
     pub quality: f32,
     /// Concentration `κ` of the Power-Spherical baseline distribution (0 if not modelled).
     pub kappa: f32,
+    /// The floor `κ0` the backend clamps `κ` to (the model card's `kappa0`): `κ` at the floor
+    /// means the network's own estimate was at or below it. 0 where `κ` is not modelled or has
+    /// no floor. Selection's `confident-first` order reads it from each configuration.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub kappa_floor: f32,
+}
+
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
 }
 
 impl GraspConfiguration {
@@ -280,6 +289,7 @@ mod tests {
             width: 0.03,
             quality: 0.9,
             kappa: 25.0,
+            kappa_floor: 0.0,
         };
         cfg.collision_scores[5] = 0.9;
         cfg.collision_scores[2] = 0.7;

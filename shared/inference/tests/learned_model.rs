@@ -256,7 +256,16 @@ fn backend_end_to_end(kind: RuntimeKind, ort_library: Option<PathBuf>) {
     );
     let widths: Vec<f32> = configs[..m].iter().map(|c| c.width).collect();
     assert_close("width", &widths, reference.get("width"));
+    // Every configuration carries the card's κ0, the floor the graph clamps κ to, so that
+    // selection in another process knows which κ are clamped.
+    let kappa0 = backend.card().kappa0;
     for c in &configs {
+        assert_eq!(c.kappa_floor, kappa0);
+        assert!(
+            c.kappa >= kappa0 && c.kappa <= 4.0 * kappa0,
+            "κ {}",
+            c.kappa
+        );
         assert!((c.baseline.norm() - 1.0).abs() < 1e-4);
         assert!((0.0..=1.0).contains(&c.quality));
         assert!(c.collision_scores.iter().all(|s| (0.0..=1.0).contains(s)));

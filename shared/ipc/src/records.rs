@@ -20,8 +20,9 @@ pub struct GraspRecord {
     pub quality: f32,
     /// Baseline concentration κ (0 if the backend does not model it).
     pub kappa: f32,
-    /// Reserved, zero.
-    pub reserved: f32,
+    /// The floor κ0 the backend clamps κ to (0: none; was a reserved zero before it carried the
+    /// model card's `kappa0`, so an older sender reads as "no floor").
+    pub kappa_floor: f32,
 }
 
 impl From<&GraspConfiguration> for GraspRecord {
@@ -33,7 +34,7 @@ impl From<&GraspConfiguration> for GraspRecord {
             width: c.width,
             quality: c.quality,
             kappa: c.kappa,
-            reserved: 0.0,
+            kappa_floor: c.kappa_floor,
         }
     }
 }
@@ -47,6 +48,7 @@ impl From<&GraspRecord> for GraspConfiguration {
             width: r.width,
             quality: r.quality,
             kappa: r.kappa,
+            kappa_floor: r.kappa_floor,
         }
     }
 }
@@ -398,6 +400,7 @@ mod tests {
             width: 0.05,
             quality: 0.8,
             kappa: 40.0,
+            kappa_floor: 25.0,
         };
         let r = GraspRecord::from(&c);
         assert_eq!(GraspConfiguration::from(&r), c);

@@ -450,6 +450,7 @@ mod tests {
             width: 0.03,
             quality,
             kappa: 0.0,
+            kappa_floor: 0.0,
         }
     }
 

@@ -127,11 +127,12 @@ pub struct SelectionConfig {
     /// stored configurations (dataset manifests, evaluation runs) keep their form.
     #[serde(skip_serializing_if = "is_default_baseline_tolerance")]
     pub baseline_tolerance_deg: f32,
-    /// `confident-first` only: κ strictly above this counts as confident; set it to the model
-    /// card's `kappa0` (the floor its κ is clamped to; 25 for every model we ship). Not written at
-    /// its default.
-    #[serde(skip_serializing_if = "is_default_confident_kappa")]
-    pub confident_kappa_above: f32,
+    /// `confident-first` only: κ strictly above this counts as confident, for every
+    /// configuration. `None` (default, and then not written): each configuration's own floor
+    /// ([`GraspConfiguration::kappa_floor`], the model card's `kappa0` that the inference stage
+    /// sends with the grasp set), so a model trained with another κ0 needs no setting here.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub confident_kappa_above: Option<f32>,
     /// An approach whose grasp pose, pre-grasp or path fails the collision checks with the tool
     /// centre point at the contacts' midpoint (the paper's grasp frame) is tried again with it
     /// raised these distances back along the approach, in order, metres: the contacts then meet
@@ -154,13 +155,6 @@ pub struct SelectionConfig {
 
 /// `SelectionConfig::baseline_tolerance_deg`'s default, degrees.
 pub const DEFAULT_BASELINE_TOLERANCE_DEG: f32 = 20.0;
-
-/// `SelectionConfig::confident_kappa_above`'s default: the paper's κ0, our model cards' floor.
-pub const DEFAULT_CONFIDENT_KAPPA_ABOVE: f32 = 25.0;
-
-fn is_default_confident_kappa(k: &f32) -> bool {
-    *k == DEFAULT_CONFIDENT_KAPPA_ABOVE
-}
 
 fn is_zero(v: &f32) -> bool {
     *v == 0.0
@@ -189,7 +183,7 @@ impl Default for SelectionConfig {
             pick_spacing_m: 0.05,
             pick_order: PickOrder::Quality,
             baseline_tolerance_deg: DEFAULT_BASELINE_TOLERANCE_DEG,
-            confident_kappa_above: DEFAULT_CONFIDENT_KAPPA_ABOVE,
+            confident_kappa_above: None,
             tcp_lifts_m: Vec::new(),
             fallback: None,
             surface_check: SurfaceCheck::default(),
@@ -255,7 +249,8 @@ impl SelectionConfig {
             "must lie in (0, 180)",
         )?;
         check_setting(
-            c.confident_kappa_above.is_finite() && c.confident_kappa_above >= 0.0,
+            c.confident_kappa_above
+                .is_none_or(|k| k.is_finite() && k >= 0.0),
             "confident_kappa_above",
             "must be finite and ≥ 0",
         )?;

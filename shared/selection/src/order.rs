@@ -23,11 +23,13 @@ pub enum PickOrder {
     /// Configurations without a distribution (κ ≤ 0: analytic, VGN-style, oracle) keep their
     /// quality, and a constant κ (the wo κ ablation) keeps the quality order.
     ConfidentQuality,
-    /// Configurations whose concentration κ lies above
-    /// [`crate::SelectionConfig::confident_kappa_above`] (the model card's floor κ0) first, each
-    /// tier by antipodal quality: a κ clamped at its floor is the network saying it does not know
-    /// the baseline, and such picks hold less often. Configurations without a distribution and a
-    /// constant κ (the wo κ ablation) all fall in one tier and keep the quality order.
+    /// Configurations whose concentration κ lies above their floor first (the model card's κ0
+    /// that each configuration carries, [`GraspConfiguration::kappa_floor`], or
+    /// [`crate::SelectionConfig::confident_kappa_above`] where set), each tier by antipodal
+    /// quality: a κ clamped at its floor is the network saying it does not know the baseline,
+    /// and such picks hold less often. Configurations without a distribution (κ = floor = 0) and
+    /// a constant κ (the wo κ ablation, κ = κ0 everywhere) all fall in one tier and keep the
+    /// quality order.
     ConfidentFirst,
 }
 
@@ -36,8 +38,9 @@ pub enum PickOrder {
 pub struct OrderSettings {
     /// cos(tolerance / 2) for [`PickOrder::ConfidentQuality`].
     pub cos_half_tolerance: f32,
-    /// κ strictly above this is confident for [`PickOrder::ConfidentFirst`].
-    pub confident_kappa_above: f32,
+    /// κ strictly above this is confident for [`PickOrder::ConfidentFirst`]; `None`: above the
+    /// configuration's own [`GraspConfiguration::kappa_floor`].
+    pub confident_kappa_above: Option<f32>,
 }
 
 impl PickOrder {
@@ -51,11 +54,8 @@ impl PickOrder {
             }
             // Quality lies in [0, 1], so the confident tier's priorities lie above all others.
             PickOrder::ConfidentFirst => {
-                let tier = if c.kappa > settings.confident_kappa_above {
-                    CONFIDENT_TIER
-                } else {
-                    0.0
-                };
+                let floor = settings.confident_kappa_above.unwrap_or(c.kappa_floor);
+                let tier = if c.kappa > floor { CONFIDENT_TIER } else { 0.0 };
                 tier + c.quality
             }
             PickOrder::Topmost => p.z,
@@ -97,7 +97,7 @@ mod tests {
     fn settings(cos_half_tolerance: f32) -> OrderSettings {
         OrderSettings {
             cos_half_tolerance,
-            confident_kappa_above: 25.0,
+            confident_kappa_above: None,
         }
     }
 
@@ -109,6 +109,7 @@ mod tests {
             width: 0.04,
             quality,
             kappa: 0.0,
+            kappa_floor: 0.0,
         }
     }
 
@@ -194,8 +195,10 @@ mod tests {
     fn confident_first_puts_every_kappa_above_the_floor_before_the_floor() {
         let bin = BinModel::default();
         let c = bin.floor_center;
+        // As the learned backend sends them: κ with the card's floor κ0 = 25.
         let with = |q: f32, kappa: f32| GraspConfiguration {
             kappa,
+            kappa_floor: 25.0,
             ..at(c.x, c.y, c.z + 0.05, q)
         };
         let p =
@@ -205,8 +208,23 @@ mod tests {
         // Within a tier, quality decides.
         assert!(p(&with(0.9, 26.0)) > p(&with(0.8, 90.0)));
         assert!(p(&with(0.9, 25.0)) > p(&with(0.8, 25.0)));
-        // No distribution (κ = 0) or one κ for all: the quality order.
-        assert!(p(&with(0.9, 0.0)) > p(&with(0.8, 0.0)));
-        assert_eq!(p(&with(0.7, 0.0)), 0.7);
+        // Each configuration's own floor: a model with κ0 = 10 is confident at 12.
+        let low_floor = |q: f32, kappa: f32| GraspConfiguration {
+            kappa_floor: 10.0,
+            ..with(q, kappa)
+        };
+        assert!(p(&low_floor(0.51, 12.0)) > p(&low_floor(1.0, 10.0)));
+        // The setting, where given, overrides the configurations' floors.
+        let fixed = OrderSettings {
+            confident_kappa_above: Some(30.0),
+            ..settings(0.98)
+        };
+        let q = |g: &GraspConfiguration| PickOrder::ConfidentFirst.priority(g, &bin, fixed);
+        assert!(q(&with(1.0, 26.0)) < q(&with(0.51, 31.0)));
+        assert_eq!(q(&with(1.0, 26.0)), 1.0);
+        // No distribution (κ = 0, no floor) or one κ for all: the quality order.
+        assert!(p(&at(c.x, c.y, c.z, 0.9)) > p(&at(c.x, c.y, c.z, 0.8)));
+        assert_eq!(p(&at(c.x, c.y, c.z, 0.7)), 0.7);
+        assert!(p(&with(0.9, 25.0)) > p(&with(0.8, 25.0)));
     }
 }

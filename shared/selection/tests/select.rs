@@ -39,6 +39,7 @@ fn config(contact: [f32; 3], quality: f32, free: &[usize], score: f32) -> GraspC
         width: 0.04,
         quality,
         kappa: 0.0,
+        kappa_floor: 0.0,
     }
 }
 
@@ -548,8 +549,9 @@ fn confident_quality_puts_a_sharp_baseline_before_a_slightly_better_uncertain_on
     assert!(format!("{:?}", bad.validate().unwrap_err()).contains("baseline_tolerance_deg"));
 }
 
-/// `confident-first` takes every configuration whose κ lies above the floor before any at the
-/// floor, each tier by quality; the floor is a setting, and without κ the quality order stays.
+/// `confident-first` takes every configuration whose κ lies above its floor before any at the
+/// floor, each tier by quality; the floor comes with each configuration (the model card's κ0)
+/// unless the setting fixes one, and without κ the quality order stays.
 #[test]
 fn confident_first_takes_kappa_above_the_floor_before_better_scored_floor_grasps() {
     let grid = scene(&[]);
@@ -559,10 +561,11 @@ fn confident_first_takes_kappa_above_the_floor_before_better_scored_floor_grasps
         config([c.x, c.y, c.z + 0.04], 0.6, &DOWN, 1.0),
         config([c.x + 0.15, c.y, c.z + 0.04], 0.7, &DOWN, 1.0),
     ];
-    configs[0].kappa = 25.0;
-    configs[1].kappa = 25.5;
-    configs[2].kappa = 40.0;
-    let order = |configs: &[GraspConfiguration], confident_kappa_above: f32| {
+    for (k, kappa) in configs.iter_mut().zip([25.0, 25.5, 40.0]) {
+        k.kappa = kappa;
+        k.kappa_floor = 25.0;
+    }
+    let order = |configs: &[GraspConfiguration], confident_kappa_above: Option<f32>| {
         let cfg = SelectionConfig {
             pick_order: PickOrder::ConfidentFirst,
             confident_kappa_above,
@@ -570,16 +573,22 @@ fn confident_first_takes_kappa_above_the_floor_before_better_scored_floor_grasps
         };
         picked(configs, &grid, cfg)
     };
-    assert_eq!(order(&configs, 25.0), vec![2, 1, 0]);
-    // A higher floor moves the κ 25.5 grasp into the lower tier.
-    assert_eq!(order(&configs, 30.0), vec![2, 0, 1]);
-    // No κ (analytic, VGN-style, oracle): the quality order.
+    assert_eq!(order(&configs, None), vec![2, 1, 0]);
+    // A model whose floor is 30 sends κ 25 and 25.5 as the same tier.
+    for k in configs.iter_mut() {
+        k.kappa_floor = 30.0;
+    }
+    assert_eq!(order(&configs, None), vec![2, 0, 1]);
+    // The setting overrides the floors the configurations carry.
+    assert_eq!(order(&configs, Some(25.0)), vec![2, 1, 0]);
+    // No κ (analytic, VGN-style, oracle: κ = floor = 0): the quality order.
     for k in configs.iter_mut() {
         k.kappa = 0.0;
+        k.kappa_floor = 0.0;
     }
-    assert_eq!(order(&configs, 25.0), vec![0, 2, 1]);
+    assert_eq!(order(&configs, None), vec![0, 2, 1]);
     let bad = SelectionConfig {
-        confident_kappa_above: f32::NAN,
+        confident_kappa_above: Some(f32::NAN),
         ..SelectionConfig::default()
     };
     assert!(format!("{:?}", bad.validate().unwrap_err()).contains("confident_kappa_above"));

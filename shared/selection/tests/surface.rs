@@ -84,6 +84,7 @@ fn grasp() -> GraspConfiguration {
         width: 0.04,
         quality: 0.95,
         kappa: 0.0,
+        kappa_floor: 0.0,
     }
 }
 

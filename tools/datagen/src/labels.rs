@@ -151,6 +151,7 @@ impl GraspLabel {
             width: self.width,
             quality: self.quality,
             kappa: 0.0,
+            kappa_floor: 0.0,
         }
     }
 

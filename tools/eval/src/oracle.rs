@@ -69,6 +69,7 @@ pub(crate) fn oracle_configurations(
         width: l.width,
         quality: l.quality,
         kappa: 0.0,
+        kappa_floor: 0.0,
     })
     .collect()
 }

@@ -44,6 +44,7 @@ fn top_down_at(bin: &BinModel, height_m: f32) -> GraspConfiguration {
         width: 0.04,
         quality: 1.0,
         kappa: 0.0,
+        kappa_floor: 0.0,
     }
 }
 

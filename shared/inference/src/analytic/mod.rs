@@ -451,6 +451,7 @@ impl InferenceBackend for AnalyticBackend {
                 width: c.width,
                 quality: c.quality,
                 kappa: 0.0,
+                kappa_floor: 0.0,
             });
         }
         self.stats.configurations = out.len();

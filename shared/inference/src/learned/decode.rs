@@ -81,6 +81,9 @@ pub struct DecodeSettings {
     pub approach_depth_m: f32,
     /// Keep only the best approach per configuration.
     pub single_approach: bool,
+    /// The card's `kappa0`, the floor the graph clamps κ to; every configuration carries it
+    /// ([`GraspConfiguration::kappa_floor`]).
+    pub kappa_floor: f32,
 }
 
 /// `(cos γ_i, sin γ_i)` for `γ_i = π/2 + π·i/(N_APPROACHES − 1)`.
@@ -231,6 +234,7 @@ impl<'a> Decoder<'a> {
             width: w,
             quality: self.contact.sample(0, c) * head.quality_prior[n],
             kappa: head.kappa[n],
+            kappa_floor: self.settings.kappa_floor,
         }
     }
 }
@@ -322,6 +326,7 @@ mod tests {
         let settings = DecodeSettings {
             approach_depth_m: 0.039,
             single_approach: false,
+            kappa_floor: 25.0,
         };
         let mut out = Vec::new();
         decode(&probs, &ws, &[c], &head, &settings, &mut out).unwrap();
@@ -329,6 +334,10 @@ mod tests {
         assert!((g.quality - (0.2 + c[0]) * 0.8).abs() < 1e-5);
         assert_eq!(g.width, w);
         assert_eq!(g.kappa, 30.0);
+        assert_eq!(
+            g.kappa_floor, 25.0,
+            "the card's floor travels with the configuration"
+        );
         // Approach i points along a_i; the approach point is tcp − a_i·d, P_g depends on z only.
         let a = approach_vectors(&Vector3::from(b));
         let tcp_z = c[2] + 0.5 * w * b[2];
@@ -373,6 +382,7 @@ mod tests {
         let settings = DecodeSettings {
             approach_depth_m: 0.039,
             single_approach: false,
+            kappa_floor: 25.0,
         };
         let mut head = one_point_head([1.0, 0.0, 0.0], 0.03, 0.5, [0.5; N_APPROACHES]);
         let mut out = Vec::new();

@@ -283,6 +283,7 @@ impl LearnedModel {
         DecodeSettings {
             approach_depth_m: self.card.gripper.approach_depth_m,
             single_approach: self.card.inference.single_approach,
+            kappa_floor: self.card.kappa0,
         }
     }
 }

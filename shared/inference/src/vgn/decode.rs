@@ -254,6 +254,7 @@ impl VgnDecoder {
                 width,
                 quality: q.clamp(0.0, 1.0),
                 kappa: 0.0,
+                kappa_floor: 0.0,
             });
         }
         Ok(())
