@@ -117,6 +117,10 @@ class LossConfig:
     focal_gamma: float = 2.0
     #: η_b: baseline NLL (or 1 − cosine for the 1app-cosine variant).
     baseline: float = 1.0
+    #: p: each neighbour label's term of the baseline NLL weighted by its antipodal quality^p
+    #: (0 = the paper's plain mean over neighbours; > 0 pulls ν toward the most antipodal labels
+    #: of a contact, whose baselines are drawn over a 40° friction cone).
+    baseline_quality_power: float = 0.0
     #: η_a: approach mixture NLL.
     approach: float = 0.01
     #: η_w: width (contact pair distance) loss, measured in width_unit_m.
@@ -284,6 +288,8 @@ class Config:
         lo = self.loss
         if len(lo.class_weights) != 3 or any(w < 0 for w in lo.class_weights):
             raise ConfigError("loss.class_weights must be three non-negative weights [empty, contact, gripper]")
+        if not (lo.baseline_quality_power >= 0 and math.isfinite(lo.baseline_quality_power)):
+            raise ConfigError("loss.baseline_quality_power must be finite and ≥ 0")
         if lo.vgn_negative_band_voxels < 0 or lo.vgn_positive_weight < 0 or lo.vgn_positive_dilation_voxels < 0:
             raise ConfigError("loss.vgn_negative_band_voxels, vgn_positive_weight, vgn_positive_dilation_voxels must be ≥ 0")
         if lo.focal_gamma < 0 or not (lo.width_unit_m > 0) or not (0 < lo.sigma_floor < 1):

@@ -217,7 +217,8 @@ def grasp_loss(scene: Scene, targets: GraspTargets, points: torch.Tensor, mlp_ou
                probabilities: torch.Tensor, cfg: Config, approach_depth_m: float) -> dict[str, torch.Tensor]:
     """The grasp loss terms (unweighted) and their weighted sum ``grasp``.
 
-    * baseline: mean over neighbours of −log PS(b_n | ν, κ) (variant 1app-cosine: 1 − cos(ν, ν̂));
+    * baseline: mean over neighbours of −log PS(b_n | ν, κ), each weighted by quality^p with
+      ``loss.baseline_quality_power`` p > 0 (variant 1app-cosine: 1 − cos(ν, ν̂));
     * approach: −log Σσ_i PS(a | R_γi R⊥ ν̂, κ)/Σσ_i over the collision-free approaches of every neighbour;
     * width: min over neighbours of the mean endpoint distance between (c, c + w ν̂) and (c_n, c_n + w_n b_n);
     * quality: |q − max neighbour quality| (all points, target 0 without neighbours);
@@ -244,7 +245,10 @@ def grasp_loss(scene: Scene, targets: GraspTargets, points: torch.Tensor, mlp_ou
         nu_h, kappa_h = nu[h], kappa[h]
         if cfg.kappa_learned:
             lp = ps.log_prob(b_n, nu_h.unsqueeze(1), kappa_h.unsqueeze(1))  # [H, k]
-            terms["baseline"] = (-(lp * vf).sum(1) / vf.sum(1)).mean()
+            weight = vf
+            if lc.baseline_quality_power > 0:
+                weight = vf * scene.quality[safe].clamp_min(1e-6) ** lc.baseline_quality_power
+            terms["baseline"] = (-(lp * weight).sum(1) / weight.sum(1)).mean()
         else:
             terms["baseline"] = (1.0 - F.cosine_similarity(nu_h, nu_hat[h], dim=1)).mean()
         # Approach NLL: mixture components around ν̂'s approach vectors, weights σ (floored).

@@ -113,6 +113,29 @@ def test_grasp_loss_penalises_wrong_predictions():
     assert float(uniform["collision"]) > 0.5
 
 
+def test_quality_power_pulls_the_baseline_toward_the_more_antipodal_label():
+    # Two labels at the same contact, orthogonal baselines, qualities 0.95 and 0.55.
+    scene = one_grasp_scene()
+    scene.contact = scene.contact.repeat(2, 1)
+    scene.baseline = torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    scene.width = scene.width.repeat(2)
+    scene.quality = torch.tensor([0.95, 0.55])
+    scene.collision_free = scene.collision_free.repeat(2, 1)
+    at_good, at_poor = outputs(baseline=(1.0, 0.0, 0.0)), outputs(baseline=(0.0, 1.0, 0.0))
+    plain = config_from_dict({})
+    # The paper's mean over neighbours cannot tell the two apart.
+    assert float(run_loss(plain, at_good, scene=scene)["baseline"]) == pytest.approx(
+        float(run_loss(plain, at_poor, scene=scene)["baseline"]), rel=1e-6)
+    # Weighted by quality^4: the NLL at the better label is lower by (w1 − w2)/(w1 + w2)·κ ln 2.
+    weighted = config_from_dict({"loss": {"baseline_quality_power": 4.0}})
+    w1, w2 = 0.95 ** 4, 0.55 ** 4
+    gap = float(run_loss(weighted, at_poor, scene=scene)["baseline"]) - float(
+        run_loss(weighted, at_good, scene=scene)["baseline"])
+    assert gap == pytest.approx((w1 - w2) / (w1 + w2) * 25 * math.log(2), rel=1e-4)
+    with pytest.raises(Exception, match="baseline_quality_power"):
+        config_from_dict({"loss": {"baseline_quality_power": -1.0}})
+
+
 def test_point_without_neighbours_only_trains_quality():
     cfg = config_from_dict({})
     terms = run_loss(cfg, outputs(), point=(0.02, 0.02, 0.02))
