@@ -4,7 +4,7 @@ import pytest
 import torch
 from torch.nn import functional as F
 
-from psgrasp_training.config import config_from_dict
+from psgrasp_training.config import ConfigError, config_from_dict
 from psgrasp_training.data import Scene
 from psgrasp_training.losses import GraspIndex, focal_loss, grasp_loss, grasp_targets
 
@@ -132,7 +132,7 @@ def test_quality_power_pulls_the_baseline_toward_the_more_antipodal_label():
     gap = float(run_loss(weighted, at_poor, scene=scene)["baseline"]) - float(
         run_loss(weighted, at_good, scene=scene)["baseline"])
     assert gap == pytest.approx((w1 - w2) / (w1 + w2) * 25 * math.log(2), rel=1e-4)
-    with pytest.raises(Exception, match="baseline_quality_power"):
+    with pytest.raises(ConfigError, match="baseline_quality_power"):
         config_from_dict({"loss": {"baseline_quality_power": -1.0}})
 
 

@@ -100,12 +100,8 @@ pub struct GraspConfiguration {
     /// The floor `κ0` the backend clamps `κ` to (the model card's `kappa0`): `κ` at the floor
     /// means the network's own estimate was at or below it. 0 where `κ` is not modelled or has
     /// no floor. Selection's `confident-first` order reads it from each configuration.
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::is_zero")]
     pub kappa_floor: f32,
-}
-
-fn is_zero(v: &f32) -> bool {
-    *v == 0.0
 }
 
 impl GraspConfiguration {

@@ -29,7 +29,7 @@ pub use grasp::{
 pub use gripper::{GripperModel, OrientedBox};
 pub use grippers::{GripperTable, DEFAULT_GRIPPER, GRIPPER_FILES};
 pub use robot::{BaseFrame, PoseInBase, PoseSetting, RobotCell, RobotConfig};
-pub use setting::{check_setting, OutOfRange};
+pub use setting::{check_setting, is_zero, OutOfRange};
 pub use workspace::Workspace;
 
 /// The pose with translation `position` and the unit quaternion `xyzw` (x, y, z, w; normalised),

@@ -1,4 +1,4 @@
-//! The one range check every configuration type uses.
+//! The one range check every configuration type uses, and the serde test for a value left at zero.
 
 /// A setting outside its valid range: the key and the valid range. Each crate's error type
 /// converts it into its own `InvalidConfig` variant.
@@ -22,6 +22,12 @@ pub fn check_setting(
     } else {
         Err(OutOfRange { field, reason })
     }
+}
+
+/// `skip_serializing_if` for a value whose zero means "not set", so stored configurations and
+/// records keep their form when it is.
+pub fn is_zero(v: &f32) -> bool {
+    *v == 0.0
 }
 
 #[cfg(test)]

@@ -108,7 +108,7 @@ pub struct SelectionConfig {
     /// `bin_contact_tolerance_m` applies (and then not written, so stored configurations keep
     /// their form). The fallback tier sets it: where the learned collision score is not trusted,
     /// grasps on and at the walls are left out.
-    #[serde(skip_serializing_if = "is_zero")]
+    #[serde(skip_serializing_if = "psgrasp_geometry::is_zero")]
     pub min_contact_wall_distance_m: f32,
     /// Check the gripper against the bin walls and floor.
     pub check_bin_collision: bool,
@@ -155,10 +155,6 @@ pub struct SelectionConfig {
 
 /// `SelectionConfig::baseline_tolerance_deg`'s default, degrees.
 pub const DEFAULT_BASELINE_TOLERANCE_DEG: f32 = 20.0;
-
-fn is_zero(v: &f32) -> bool {
-    *v == 0.0
-}
 
 fn is_default_baseline_tolerance(deg: &f32) -> bool {
     *deg == DEFAULT_BASELINE_TOLERANCE_DEG
