@@ -14,7 +14,7 @@ own point rule and neighbour query, before the paper's clamp to [κ0, 4κ0].
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -76,6 +76,10 @@ class KappaCeiling:
     at_cap_share: float
     #: mean of κ* clamped to [κ0, 4κ0] (the paper's mapping), all points with a neighbour
     clamped_mean: float
+    #: grasp labels of the scenes read (``kappa_ceiling_report``; 0 from ``kappa_ceiling`` alone)
+    labels: int = 0
+    #: their mean antipodal quality (NaN without labels)
+    label_mean_quality: float = math.nan
 
 
 def kappa_ceiling(kappas, angles, counts, kappa0: float) -> KappaCeiling:
@@ -108,9 +112,12 @@ def kappa_ceiling_report(cfg: Config, data: Path, scenes: int, log=print) -> Kap
     kappas: list[torch.Tensor] = []
     angles: list[torch.Tensor] = []
     counts: list[torch.Tensor] = []
+    labels, quality_sum = 0, 0.0
     c = cfg.contacts
     for e in ds.train_entries[:scenes]:
         scene = ds.scene(e)
+        labels += len(scene.quality)
+        quality_sum += float(scene.quality.to(torch.float64).sum())
         g = torch.Generator().manual_seed(derive_seed(cfg.seed, 5, scene.index))
         pts = contact_voxel_points(scene, cfg, g)
         idx = GraspIndex(scene.contact, max(c.neighbour_radius_m, scene.voxel_size_m)).query(
@@ -129,7 +136,9 @@ def kappa_ceiling_report(cfg: Config, data: Path, scenes: int, log=print) -> Kap
     kappas, angles, counts = cat(kappas), cat(angles), cat(counts)
     k0 = cfg.model.kappa0
     r = kappa_ceiling(kappas, angles, counts, k0)
-    log(f"{min(scenes, len(ds.train_entries))} scenes, {r.points} training points with a neighbour label "
+    r = replace(r, labels=labels, label_mean_quality=quality_sum / labels if labels else math.nan)
+    log(f"{min(scenes, len(ds.train_entries))} scenes, {r.labels} grasp labels (mean antipodal quality "
+        f"{r.label_mean_quality:.3f}), {r.points} training points with a neighbour label "
         f"(mean {r.mean_neighbours:.1f} neighbours, {100 * r.single_neighbour_share:.0f} % a single one)")
     log(f"κ* (the best a model can earn per point): median {r.median_kappa:.1f} over points with ≥ 2 neighbours "
         f"(their mean angle to the best direction {r.mean_angle_deg:.1f}°); below κ0 = {k0:g}: "

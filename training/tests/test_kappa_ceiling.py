@@ -55,7 +55,9 @@ def test_report_on_box_scenes_puts_every_point_at_the_cap(box_dataset, tiny_cfg)
     assert r.clamped_mean == pytest.approx(100.0)
     assert r.mean_angle_deg == pytest.approx(0.0, abs=1e-3)
     assert r.mean_neighbours > 1
-    assert len(lines) == 3 and "κ*" in lines[1]
+    # The box labels all have quality 1 (synthetic.py).
+    assert r.labels > 0 and r.label_mean_quality == pytest.approx(1.0)
+    assert len(lines) == 3 and "κ*" in lines[1] and "quality 1.000" in lines[0]
 
 
 def test_earned_kappa_per_row_matches_ml_kappa_with_that_nu_and_ignores_padding():
