@@ -8,6 +8,7 @@
 //! open gripper (palm + two fingers, opened `width + 2·approach_clearance`) at each of the 18
 //! approach vectors against the whole scene (every object, the grasped one included, and the
 //! bin). A grasp configuration is stored when at least one approach is collision-free.
+pub use crate::approach_path::ApproachPathCheck;
 use nalgebra::{Point3, Vector3};
 use psgrasp_geometry::{
     antipodal_quality, at_first_passing_lift, ContactGrasp, GraspConfiguration, GripperModel,
@@ -63,6 +64,11 @@ pub struct LabelConfig {
     /// written to manifests): the paper's frame only.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub tcp_lifts_m: Vec<f32>,
+    /// Also test the open hand's straight descent from the pre-grasp pose
+    /// ([`ApproachPathCheck`]): an approach whose descent meets anything is colliding. `None`
+    /// (the default, not written to manifests): the grasp pose alone, as ACRONYM.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub approach_path: Option<ApproachPathCheck>,
 }
 
 impl Default for LabelConfig {
@@ -83,15 +89,19 @@ impl Default for LabelConfig {
             check_closing_region: true,
             store_symmetric: true,
             tcp_lifts_m: Vec::new(),
+            approach_path: None,
         }
     }
 }
 
 impl LabelConfig {
     /// Checks the settings whose bad values would not fail on their own (the lifts of the tool
-    /// centre point; field `labels.tcp_lifts_m`).
+    /// centre point, `labels.tcp_lifts_m`; the descent test, `labels.approach_path`).
     pub fn validate(&self) -> Result<(), psgrasp_geometry::OutOfRange> {
-        psgrasp_geometry::check_tcp_lifts(&self.tcp_lifts_m, "labels.tcp_lifts_m")
+        psgrasp_geometry::check_tcp_lifts(&self.tcp_lifts_m, "labels.tcp_lifts_m")?;
+        self.approach_path
+            .as_ref()
+            .map_or(Ok(()), ApproachPathCheck::validate)
     }
 
     /// A small configuration for tests and previews (about a tenth of the work).
@@ -199,6 +209,10 @@ pub struct LabelStats {
     pub finger_collisions: usize,
     /// Poses rejected because something else sits between the fingers.
     pub closing_blocked: usize,
+    /// Poses rejected because the hand's descent to them meets something
+    /// ([`LabelConfig::approach_path`]; 0 when the test is off).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub approach_path_blocked: usize,
     /// Grasp configurations stored (incl. mirrored ones).
     pub configurations: usize,
     /// Collision-free grasps stored (configurations × free approaches).
@@ -265,6 +279,9 @@ pub enum PoseCheck {
     FingerCollision,
     /// Another object or the bin intrudes the region between the fingers.
     ClosingRegionBlocked,
+    /// The pose is free but the open hand's descent to it meets an object or the bin
+    /// ([`LabelConfig::approach_path`]).
+    ApproachPathBlocked,
 }
 
 /// Tests the gripper at `grasp` (opened `width + 2·clearance`) against the scene: at the
@@ -310,6 +327,11 @@ pub fn check_pose_lifted(
         let region = gripper.closing_region(grasp.width).placed(&pose);
         if scene.box_collides(&region, Some(object)) {
             return PoseCheck::ClosingRegionBlocked;
+        }
+    }
+    if let Some(path) = &config.approach_path {
+        if path.blocked(scene, gripper, &pose, grasp.width) {
+            return PoseCheck::ApproachPathBlocked;
         }
     }
     PoseCheck::Free
@@ -486,6 +508,7 @@ impl Labeller<'_> {
                 PoseCheck::PalmCollision => stats.palm_collisions += 1,
                 PoseCheck::FingerCollision => stats.finger_collisions += 1,
                 PoseCheck::ClosingRegionBlocked => stats.closing_blocked += 1,
+                PoseCheck::ApproachPathBlocked => stats.approach_path_blocked += 1,
             }
         }
         (label.free_count() > 0).then_some(label)

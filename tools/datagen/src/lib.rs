@@ -7,6 +7,7 @@
 //! [`cli::run_datagen`] and [`cli::run_inspect`].
 #![warn(missing_docs)]
 
+pub mod approach_path;
 pub mod cli;
 pub mod dataset;
 pub mod generate;

@@ -296,3 +296,112 @@ fn bad_tcp_lifts_are_refused_by_name() {
     }
     assert!(LabelConfig::default().validate().is_ok());
 }
+
+/// True when the gripper's box `b` overlaps the axis-aligned box (`centre`, `half`) by more
+/// than `tolerance` (the separating-axis test: no face normal of either box and no cross product
+/// of their edges separates them).
+fn gripper_box_meets_cube(
+    b: &psgrasp_geometry::OrientedBox,
+    centre: &Point3<f32>,
+    half: f32,
+    tolerance: f32,
+) -> bool {
+    let r = b.parent_from_box.rotation;
+    let b_axes = [r * Vector3::x(), r * Vector3::y(), r * Vector3::z()];
+    let cube_axes = [Vector3::x(), Vector3::y(), Vector3::z()];
+    let offset = b.parent_from_box.translation.vector - centre.coords;
+    let mut axes: Vec<Vector3<f32>> = b_axes.iter().chain(&cube_axes).copied().collect();
+    for u in &b_axes {
+        for v in &cube_axes {
+            let c = u.cross(v);
+            if c.norm() > 1e-6 {
+                axes.push(c.normalize());
+            }
+        }
+    }
+    axes.iter().all(|axis| {
+        let rb: f32 = (0..3)
+            .map(|k| b.half_extents[k] * b_axes[k].dot(axis).abs())
+            .sum();
+        let rc: f32 = cube_axes.iter().map(|e| half * e.dot(axis).abs()).sum();
+        offset.dot(axis).abs() < rb + rc - tolerance
+    })
+}
+
+#[test]
+fn the_descent_test_drops_approaches_whose_open_hand_meets_a_neighbour() {
+    // Two 40 mm cubes 35 mm apart on the floor. ACRONYM's pose test opens the hand 2 × 10 mm wider
+    // than the pair, so a finger fits in the gap beside its contact; the hand the protocol
+    // commands is 2 × 20 mm wider than the pair and comes straight down from 80 mm back, so that
+    // finger meets the neighbour. With the descent test on, no free approach's descent meets a
+    // cube or the floor (checked independently: each gripper box at every 1 mm of the descent
+    // against the cubes by separating axes, 0.1 mm tolerance), while the pose test alone labels
+    // some whose descent does.
+    let half = 0.02;
+    let gap = 0.035;
+    let dx = half + 0.5 * gap;
+    let scene = psgrasp_test_support::scenes::boxes_on_floor(&[
+        ([half; 3], [-dx, 0.0]),
+        ([half; 3], [dx, 0.0]),
+    ]);
+    let centres: Vec<Point3<f32>> = scene
+        .objects()
+        .iter()
+        .map(|o| o.workspace_from_object * Point3::origin())
+        .collect();
+    let floor_top = scene.bin().floor_center.z;
+    let gripper = GripperModel::default();
+    let path = psgrasp_datagen::labels::ApproachPathCheck::default();
+    let descent_meets = |l: &GraspLabel, i: usize| {
+        let opening = (l.width + path.opening_clearance_m).min(gripper.max_opening_m);
+        (0..=20).any(|k| {
+            let pose = l
+                .grasp(i)
+                .workspace_from_gripper_lifted(path.distance_m * k as f32 / 20.0);
+            gripper.boxes(&pose, opening).iter().any(|b| {
+                centres
+                    .iter()
+                    .any(|c| gripper_box_meets_cube(b, c, half, 0.002))
+                    || b.corners().iter().any(|p| p.z < floor_top)
+            })
+        })
+    };
+    let count_meeting = |labels: &[GraspLabel]| {
+        labels
+            .iter()
+            .flat_map(|l| {
+                (0..N_APPROACHES)
+                    .filter(|&i| l.collision_free[i])
+                    .map(move |i| (l, i))
+            })
+            .filter(|(l, i)| descent_meets(l, *i))
+            .count()
+    };
+    let pose_only = labels_for(&scene, &LabelConfig::quick(), 4);
+    assert!(
+        count_meeting(&pose_only) > 0,
+        "the pose test alone should label some approach whose descent meets a cube"
+    );
+    let with_descent = LabelConfig {
+        approach_path: Some(path),
+        ..LabelConfig::quick()
+    };
+    let camera = default_camera(scene.bin(), CameraIntrinsics::default_640x480());
+    let set = generate_labels(
+        &scene,
+        &camera,
+        &scene.render(&camera),
+        &gripper,
+        &with_descent,
+        4,
+    );
+    assert!(set.labels.len() > 10, "only {} labels", set.labels.len());
+    assert!(set.stats.approach_path_blocked > 0);
+    assert_eq!(count_meeting(&set.labels), 0);
+    // Written to the manifest's config when on, absent by default (old manifests keep their hashes).
+    let text = serde_json::to_string(&with_descent).unwrap();
+    assert!(text.contains("approach_path"), "{text}");
+    assert!(!serde_json::to_string(&LabelConfig::default())
+        .unwrap()
+        .contains("approach_path"));
+}
