@@ -297,37 +297,6 @@ fn bad_tcp_lifts_are_refused_by_name() {
     assert!(LabelConfig::default().validate().is_ok());
 }
 
-/// True when the gripper's box `b` overlaps the axis-aligned box (`centre`, `half`) by more
-/// than `tolerance` (the separating-axis test: no face normal of either box and no cross product
-/// of their edges separates them).
-fn gripper_box_meets_cube(
-    b: &psgrasp_geometry::OrientedBox,
-    centre: &Point3<f32>,
-    half: f32,
-    tolerance: f32,
-) -> bool {
-    let r = b.parent_from_box.rotation;
-    let b_axes = [r * Vector3::x(), r * Vector3::y(), r * Vector3::z()];
-    let cube_axes = [Vector3::x(), Vector3::y(), Vector3::z()];
-    let offset = b.parent_from_box.translation.vector - centre.coords;
-    let mut axes: Vec<Vector3<f32>> = b_axes.iter().chain(&cube_axes).copied().collect();
-    for u in &b_axes {
-        for v in &cube_axes {
-            let c = u.cross(v);
-            if c.norm() > 1e-6 {
-                axes.push(c.normalize());
-            }
-        }
-    }
-    axes.iter().all(|axis| {
-        let rb: f32 = (0..3)
-            .map(|k| b.half_extents[k] * b_axes[k].dot(axis).abs())
-            .sum();
-        let rc: f32 = cube_axes.iter().map(|e| half * e.dot(axis).abs()).sum();
-        offset.dot(axis).abs() < rb + rc - tolerance
-    })
-}
-
 #[test]
 fn the_descent_test_drops_approaches_whose_open_hand_meets_a_neighbour() {
     // Two 40 mm cubes 35 mm apart on the floor. ACRONYM's pose test opens the hand 2 × 10 mm wider
@@ -335,8 +304,8 @@ fn the_descent_test_drops_approaches_whose_open_hand_meets_a_neighbour() {
     // commands is 2 × 20 mm wider than the pair and comes straight down from 80 mm back, so that
     // finger meets the neighbour. With the descent test on, no free approach's descent meets a
     // cube or the floor (checked independently: each gripper box at every 1 mm of the descent
-    // against the cubes by separating axes, 0.1 mm tolerance), while the pose test alone labels
-    // some whose descent does.
+    // against the cubes by selection's separating-axis test, overlaps deeper than 0.1 mm), while
+    // the pose test alone labels some whose descent does.
     let half = 0.02;
     let gap = 0.035;
     let dx = half + 0.5 * gap;
@@ -344,24 +313,27 @@ fn the_descent_test_drops_approaches_whose_open_hand_meets_a_neighbour() {
         ([half; 3], [-dx, 0.0]),
         ([half; 3], [dx, 0.0]),
     ]);
-    let centres: Vec<Point3<f32>> = scene
+    let cubes: Vec<psgrasp_geometry::OrientedBox> = scene
         .objects()
         .iter()
-        .map(|o| o.workspace_from_object * Point3::origin())
+        .map(|o| psgrasp_geometry::OrientedBox {
+            parent_from_box: o.workspace_from_object,
+            half_extents: Vector3::repeat(half),
+        })
         .collect();
     let floor_top = scene.bin().floor_center.z;
     let gripper = GripperModel::default();
     let path = psgrasp_datagen::labels::ApproachPathCheck::default();
     let descent_meets = |l: &GraspLabel, i: usize| {
         let opening = (l.width + path.opening_clearance_m).min(gripper.max_opening_m);
-        (0..=20).any(|k| {
+        (0..=80).any(|k| {
             let pose = l
                 .grasp(i)
-                .workspace_from_gripper_lifted(path.distance_m * k as f32 / 20.0);
+                .workspace_from_gripper_lifted(path.distance_m * k as f32 / 80.0);
             gripper.boxes(&pose, opening).iter().any(|b| {
-                centres
+                cubes
                     .iter()
-                    .any(|c| gripper_box_meets_cube(b, c, half, 0.002))
+                    .any(|c| psgrasp_selection::boxes_overlap(b, c, -1e-4))
                     || b.corners().iter().any(|p| p.z < floor_top)
             })
         })
