@@ -97,6 +97,11 @@ class ContactConfig:
     predicted_points: int = 128
     #: P_contact threshold for those predicted voxels.
     predicted_probability: float = 0.5
+    #: Additionally up to this many points by the paper's rule (one uniform point in each of as many
+    #: random ground-truth contact voxels), labelled like every point by the true grasps within
+    #: neighbour_radius_m: those off the surface have none and train quality → 0 where the sub-voxel
+    #: centres of inference sample. 0 (default): none.
+    uniform_points: int = 0
     #: Neighbour radius (m): true grasps whose contact lies within it label a point (paper: 3 mm).
     neighbour_radius_m: float = 0.003
     #: At most this many (nearest) neighbours per point (paper: 16).
@@ -279,8 +284,8 @@ class Config:
         c = self.contacts
         if c.rule not in ("jittered-contact", "voxel-uniform"):
             raise ConfigError(f"contacts.rule: {c.rule!r} is not 'jittered-contact' or 'voxel-uniform'")
-        if c.max_points < 1 or c.max_neighbours < 1 or c.predicted_points < 0:
-            raise ConfigError("contacts.max_points/max_neighbours must be ≥ 1, predicted_points ≥ 0")
+        if c.max_points < 1 or c.max_neighbours < 1 or c.predicted_points < 0 or c.uniform_points < 0:
+            raise ConfigError("contacts.max_points/max_neighbours must be ≥ 1, predicted_points and uniform_points ≥ 0")
         if not (c.neighbour_radius_m > 0) or c.jitter_m < 0:
             raise ConfigError("contacts.neighbour_radius_m must be > 0 and jitter_m ≥ 0")
         if c.neighbour_radius_m > g.voxel_size_m:

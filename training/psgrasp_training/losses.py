@@ -8,7 +8,7 @@ Neighbours of a point: up to ``max_neighbours`` nearest true grasp contacts with
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch.nn import functional as F
@@ -149,6 +149,15 @@ def contact_voxel_points(scene: Scene, cfg: Config, generator: torch.Generator) 
     radius = cfg.contacts.jitter_m * torch.rand(n, 1, generator=generator, dtype=torch.float64).pow(1.0 / 3.0)
     jittered = base + direction * radius
     return torch.where((count > 0).unsqueeze(1), jittered, uniform).to(torch.float32)
+
+
+def uniform_contact_points(scene: Scene, cfg: Config, generator: torch.Generator) -> torch.Tensor:
+    """The paper's training points: one uniform point in each of at most contacts.uniform_points random
+    ground-truth contact voxels (none, and no random draw, when it is 0)."""
+    if cfg.contacts.uniform_points == 0:
+        return torch.zeros(0, 3)
+    paper = replace(cfg, contacts=replace(cfg.contacts, rule="voxel-uniform", max_points=cfg.contacts.uniform_points))
+    return contact_voxel_points(scene, paper, generator)
 
 
 def predicted_voxel_points(scene: Scene, p_contact: torch.Tensor, cfg: Config, generator: torch.Generator) -> torch.Tensor:

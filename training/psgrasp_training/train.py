@@ -22,7 +22,7 @@ from .decode import class_probabilities, sample_features, sample_grid, subvoxel_
 from .export import export_model
 from .kappa_ceiling import earned_kappa
 from .losses import (GraspIndex, contact_voxel_points, focal_loss, grasp_loss, grasp_targets,
-                     predicted_voxel_points)
+                     predicted_voxel_points, uniform_contact_points)
 from .model import CLASSES, GraspNet
 from .pickcheck import PickCheckConfig, PickStats, pick_check, scene_candidates
 
@@ -188,7 +188,7 @@ def training_step(net: GraspNet, scene: Scene, cfg: Config, g: torch.Generator, 
         probs = class_probabilities(logits)
         points = contact_voxel_points(scene, cfg, g)
         extra = predicted_voxel_points(scene, probs[0, 1].detach().cpu(), cfg, g)
-        points = torch.cat([points, extra], 0)
+        points = torch.cat([points, extra, uniform_contact_points(scene, cfg, g)], 0)
         mark("contact points")
         index = GraspIndex(scene.contact, cfg.contacts.neighbour_radius_m)
         targets = targets_to(grasp_targets(scene, index, points, cfg), device)

@@ -1,12 +1,16 @@
 import math
+from dataclasses import replace
 
+import numpy as np
 import pytest
 import torch
+from safetensors.numpy import save_file
 from torch.nn import functional as F
 
 from psgrasp_training.config import ConfigError, config_from_dict
-from psgrasp_training.data import Scene
-from psgrasp_training.losses import GraspIndex, focal_loss, grasp_loss, grasp_targets
+from psgrasp_training.data import Scene, read_scene
+from psgrasp_training.losses import GraspIndex, focal_loss, grasp_loss, grasp_targets, uniform_contact_points
+from synthetic import make_scene
 
 
 def test_focal_is_weighted_cross_entropy_at_gamma_zero():
@@ -166,3 +170,34 @@ def test_scene_without_grasps():
                   voxel_size_m=scene.voxel_size_m)
     terms = run_loss(cfg, outputs(), scene=empty)
     assert float(terms["baseline"]) == 0 and float(terms["quality"]) == pytest.approx(0.8)
+
+
+def test_paper_rule_points_lie_in_contact_voxels_and_label_off_surface_points_negative(tmp_path, tiny_cfg):
+    """contacts.uniform_points adds the paper's points: one uniform point in each of that many distinct
+    ground-truth contact voxels; the ones farther than the neighbour radius from every true contact
+    (off the surface, where inference's sub-voxel centres also sample) get quality target 0."""
+    tensors, _ = make_scene(0, np.random.default_rng(5))
+    save_file(tensors, str(tmp_path / "s.safetensors"))
+    scene = read_scene(tmp_path / "s.safetensors")
+    cfg = tiny_cfg()
+    g = torch.Generator().manual_seed(1)
+    state = g.get_state()
+    assert uniform_contact_points(scene, cfg, g).shape == (0, 3)
+    assert torch.equal(g.get_state(), state), "no draw when the option is off"
+
+    voxels = int((scene.labels == 1).sum())
+    assert voxels > 20
+    cfg = replace(cfg, contacts=replace(cfg.contacts, uniform_points=voxels - 5))
+    points = uniform_contact_points(scene, cfg, g)
+    assert points.shape == (voxels - 5, 3)
+    ijk = torch.floor(points / scene.voxel_size_m).to(torch.int64)
+    assert bool((scene.labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]] == 1).all()), "every point in a contact voxel"
+    keys = (ijk[:, 0] * 64 + ijk[:, 1]) * 64 + ijk[:, 2]
+    assert len(torch.unique(keys)) == len(points), "one point per voxel"
+    targets = grasp_targets(scene, GraspIndex(scene.contact, cfg.contacts.neighbour_radius_m), points, cfg)
+    nearest = torch.cdist(points.double(), scene.contact.double()).amin(1)
+    far = nearest > cfg.contacts.neighbour_radius_m + 1e-6
+    assert bool(far.any()) and bool((~far).any())
+    assert bool((targets.quality[far] == 0).all()) and bool((targets.quality[~far] > 0).all())
+    big = replace(cfg, contacts=replace(cfg.contacts, uniform_points=10 * voxels))
+    assert len(uniform_contact_points(scene, big, g)) == voxels, "at most one point per contact voxel"
