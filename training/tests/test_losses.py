@@ -192,8 +192,7 @@ def test_paper_rule_points_lie_in_contact_voxels_and_label_off_surface_points_ne
     assert points.shape == (voxels - 5, 3)
     ijk = torch.floor(points / scene.voxel_size_m).to(torch.int64)
     assert bool((scene.labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]] == 1).all()), "every point in a contact voxel"
-    keys = (ijk[:, 0] * 64 + ijk[:, 1]) * 64 + ijk[:, 2]
-    assert len(torch.unique(keys)) == len(points), "one point per voxel"
+    assert len(torch.unique(ijk, dim=0)) == len(points), "one point per voxel"
     targets = grasp_targets(scene, GraspIndex(scene.contact, cfg.contacts.neighbour_radius_m), points, cfg)
     nearest = torch.cdist(points.double(), scene.contact.double()).amin(1)
     far = nearest > cfg.contacts.neighbour_radius_m + 1e-6
