@@ -145,7 +145,17 @@ impl BarChart {
             .max()
             .unwrap_or(0) as i64;
         let group_w = (n_series * bar_w + group_gap).max(longest_label * GLYPH_W as i64 + 16);
-        let width = (left + n_groups * group_w + 30).max(520);
+        // Wide enough for the bars and for every title and legend entry.
+        let longest_text = self
+            .panels
+            .iter()
+            .map(|p| p.title.chars().count())
+            .chain(self.series.iter().map(|s| s.chars().count() + 3))
+            .max()
+            .unwrap_or(0) as i64;
+        let width = (left + n_groups * group_w + 30)
+            .max(left + longest_text * GLYPH_W as i64 + 20)
+            .max(520);
         let panel_h = 320i64;
         let plot_h = 200i64;
         let legend_rows = self.series.len() as i64;
@@ -407,5 +417,25 @@ mod tests {
             png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));
         let reader = decoder.read_info().unwrap();
         assert_eq!(reader.info().width, img.width);
+    }
+
+    #[test]
+    fn a_long_title_is_drawn_whole() {
+        let title = "CHALLENGING: SUCCESS RATE BY KAPPA QUARTER (%)";
+        let chart = BarChart {
+            series: vec!["ONE".into()],
+            panels: vec![Panel {
+                title: title.into(),
+                groups: vec![("A".into(), vec![Some((0.5, 0.0))])],
+            }],
+        };
+        let img = chart.render();
+        // The title starts at x = 70, y = 10; its last glyph (')') has ink in its 7-row band.
+        let last = 70 + (title.chars().count() as u32 - 1) * GLYPH_W;
+        let inked = (last..last + GLYPH_W)
+            .flat_map(|x| (10..10 + 7 * SCALE).map(move |y| (x, y)))
+            .any(|(x, y)| img.pixel(x, y) == Some(BLACK));
+        assert!(img.width >= last + GLYPH_W, "width {}", img.width);
+        assert!(inked, "the title's last glyph is not drawn");
     }
 }
