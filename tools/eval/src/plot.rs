@@ -51,6 +51,8 @@ const BLACK: [u8; 3] = [0, 0, 0];
 const GRID: [u8; 3] = [220, 220, 220];
 const SCALE: u32 = 2;
 const GLYPH_W: u32 = 6 * SCALE;
+/// A legend entry's text starts this far right of its colour swatch's left edge.
+const LEGEND_TEXT_DX: i64 = 26;
 
 impl Image {
     /// A white image.
@@ -145,16 +147,17 @@ impl BarChart {
             .max()
             .unwrap_or(0) as i64;
         let group_w = (n_series * bar_w + group_gap).max(longest_label * GLYPH_W as i64 + 16);
-        // Wide enough for the bars and for every title and legend entry.
-        let longest_text = self
+        // Wide enough for the bars and for every title and legend entry (both start at `left`).
+        let text_w = |s: &str| s.chars().count() as i64 * GLYPH_W as i64;
+        let widest_text = self
             .panels
             .iter()
-            .map(|p| p.title.chars().count())
-            .chain(self.series.iter().map(|s| s.chars().count() + 3))
+            .map(|p| text_w(&p.title))
+            .chain(self.series.iter().map(|s| LEGEND_TEXT_DX + text_w(s)))
             .max()
-            .unwrap_or(0) as i64;
+            .unwrap_or(0);
         let width = (left + n_groups * group_w + 30)
-            .max(left + longest_text * GLYPH_W as i64 + 20)
+            .max(left + widest_text + 20)
             .max(520);
         let panel_h = 320i64;
         let plot_h = 200i64;
@@ -199,7 +202,7 @@ impl BarChart {
         for (si, name) in self.series.iter().enumerate() {
             let y = ly + si as i64 * 22;
             img.rect(left, y, left + 16, y + 14, PALETTE[si % PALETTE.len()]);
-            img.text(left + 26, y, name, BLACK);
+            img.text(left + LEGEND_TEXT_DX, y, name, BLACK);
         }
         img
     }
