@@ -358,9 +358,27 @@ def config_from_dict(data: dict[str, Any]) -> Config:
     return cfg
 
 
-def load_config(path: str | Path) -> Config:
-    """Load and validate a TOML configuration file."""
-    path = Path(path)
+#: Top-level key naming the file a config builds on (a path relative to the config's folder).
+EXTENDS_KEY = "extends"
+
+
+def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``override`` laid over it: tables merge key by key, other values replace."""
+    merged = dict(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = _merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """The TOML table of ``path`` with its ``extends`` chain resolved (base first, then this file)."""
+    resolved = path.resolve()
+    if resolved in chain:
+        cycle = " -> ".join(str(p) for p in (*chain, resolved))
+        raise ConfigError(f"config {path}: '{EXTENDS_KEY}' forms a cycle ({cycle})")
     try:
         with path.open("rb") as f:
             data = tomllib.load(f)
@@ -368,4 +386,19 @@ def load_config(path: str | Path) -> Config:
         raise ConfigError(f"cannot read config {path}: {e}") from e
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"config {path} is not valid TOML: {e}") from e
-    return config_from_dict(data)
+    base_name = data.pop(EXTENDS_KEY, None)
+    if base_name is None:
+        return data
+    if not isinstance(base_name, str) or not base_name:
+        raise ConfigError(f"config {path}: '{EXTENDS_KEY}' must be a file name")
+    base = _read_toml(path.parent / base_name, (*chain, resolved))
+    return _merge(base, data)
+
+
+def load_config(path: str | Path) -> Config:
+    """Load and validate a TOML configuration file.
+
+    A file may start from another one with ``extends = "base.toml"`` (relative to its own folder):
+    its tables are laid over the base's key by key, so a variant states only what it changes.
+    Chains are followed; a cycle or a missing base is an error that names the files."""
+    return config_from_dict(_read_toml(Path(path)))
