@@ -9,6 +9,7 @@
 //! approach vectors against the whole scene (every object, the grasped one included, and the
 //! bin). A grasp configuration is stored when at least one approach is collision-free.
 pub use crate::approach_path::ApproachPathCheck;
+pub use crate::robustness::RobustQuality;
 use nalgebra::{Point3, Vector3};
 use psgrasp_geometry::{
     antipodal_quality, at_first_passing_lift, ContactGrasp, GraspConfiguration, GripperModel,
@@ -69,6 +70,11 @@ pub struct LabelConfig {
     /// (the default, not written to manifests): the grasp pose alone, as ACRONYM.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub approach_path: Option<ApproachPathCheck>,
+    /// Store each label's quality blended by how often perturbed executions of it hold
+    /// ([`RobustQuality`]). `None` (the default, not written to manifests): ACRONYM's antipodal
+    /// quality of the exact pair.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robust_quality: Option<RobustQuality>,
 }
 
 impl Default for LabelConfig {
@@ -90,18 +96,23 @@ impl Default for LabelConfig {
             store_symmetric: true,
             tcp_lifts_m: Vec::new(),
             approach_path: None,
+            robust_quality: None,
         }
     }
 }
 
 impl LabelConfig {
     /// Checks the settings whose bad values would not fail on their own (the lifts of the tool
-    /// centre point, `labels.tcp_lifts_m`; the descent test, `labels.approach_path`).
+    /// centre point, `labels.tcp_lifts_m`; the descent test, `labels.approach_path`; the robust
+    /// quality's perturbations, `labels.robust_quality`).
     pub fn validate(&self) -> Result<(), psgrasp_geometry::OutOfRange> {
         psgrasp_geometry::check_tcp_lifts(&self.tcp_lifts_m, "labels.tcp_lifts_m")?;
         self.approach_path
             .as_ref()
-            .map_or(Ok(()), ApproachPathCheck::validate)
+            .map_or(Ok(()), ApproachPathCheck::validate)?;
+        self.robust_quality
+            .as_ref()
+            .map_or(Ok(()), RobustQuality::validate)
     }
 
     /// A small configuration for tests and previews (about a tenth of the work).
@@ -513,14 +524,25 @@ impl Labeller<'_> {
         }
         (label.free_count() > 0).then_some(label)
     }
-}
 
-fn push(labels: &mut Vec<GraspLabel>, label: GraspLabel, config: &LabelConfig) {
-    labels.push(label);
-    if config.store_symmetric {
-        labels.push(label.mirrored());
+    /// Stores `label` (and its mirror), its quality first made robust when configured; the
+    /// perturbations draw from `robust_rng`, a stream of their own, so that the labels sampled
+    /// are the same with and without them.
+    fn push(&self, labels: &mut Vec<GraspLabel>, mut label: GraspLabel, robust_rng: &mut impl Rng) {
+        if let Some(robust) = &self.config.robust_quality {
+            let min = self.config.min_quality;
+            let share = robust.success_share(self.scene, self.gripper, &label, min, robust_rng);
+            label.quality = RobustQuality::blend(label.quality, min, share);
+        }
+        labels.push(label);
+        if self.config.store_symmetric {
+            labels.push(label.mirrored());
+        }
     }
 }
+
+/// Stream of the robust quality's perturbations ([`Labeller::push`]), apart from the sampling's.
+const ROBUST_QUALITY_STREAM: u64 = 0x526f_6275_7374;
 
 /// Generates the labels of `scene` as seen by `camera` (its `rendering` must come from
 /// [`Scene::render`] with the same camera). Deterministic for `seed`.
@@ -533,6 +555,7 @@ pub fn generate_labels(
     seed: u64,
 ) -> LabelSet {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut robust_rng = ChaCha8Rng::seed_from_u64(seed ^ ROBUST_QUALITY_STREAM);
     let n_obj = scene.object_count();
     let k = camera.intrinsics;
     let mut pixels: Vec<Vec<u32>> = vec![Vec::new(); n_obj];
@@ -603,7 +626,7 @@ pub fn generate_labels(
             for _ in 0..config.baselines_per_contact {
                 let b = sample_cone(&mut rng, &-normal, half_angle);
                 if let Some(label) = ctx.evaluate(object, &point, &normal, &b, &mut stats) {
-                    push(&mut labels, label, config);
+                    ctx.push(&mut labels, label, &mut robust_rng);
                 }
             }
         }
@@ -645,7 +668,7 @@ pub fn generate_labels(
             let point = origin - n * toi;
             let b = sample_cone(&mut rng, &-normal, half_angle);
             if let Some(label) = ctx.evaluate(object, &point, &normal, &b, &mut stats) {
-                push(&mut labels, label, config);
+                ctx.push(&mut labels, label, &mut robust_rng);
             }
         }
     }

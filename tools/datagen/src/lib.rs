@@ -15,6 +15,7 @@ pub mod graspability;
 pub mod inspect;
 pub mod labels;
 pub mod physics_check;
+pub mod robustness;
 pub mod targets;
 pub mod verify;
 

@@ -1,6 +1,6 @@
 //! Label generation checked against analytic scenes and by independent re-checks.
 use nalgebra::{Point3, Vector3};
-use psgrasp_datagen::labels::{check_pose, check_pose_lifted, PoseCheck};
+use psgrasp_datagen::labels::{check_pose, check_pose_lifted, PoseCheck, RobustQuality};
 use psgrasp_datagen::verify::{
     contact_surface_error, gripper_hits_scene_sampled, recompute_quality,
 };
@@ -376,4 +376,131 @@ fn the_descent_test_drops_approaches_whose_open_hand_meets_a_neighbour() {
     assert!(!serde_json::to_string(&LabelConfig::default())
         .unwrap()
         .contains("approach_path"));
+}
+
+/// Perturbations of the given size; the hand opened as the labeler checks it (width + 2 × 10 mm).
+fn robust(position_sigma_m: f32, angle_sigma_deg: f32, samples: usize) -> RobustQuality {
+    RobustQuality {
+        samples,
+        position_sigma_m,
+        angle_sigma_deg,
+        opening_clearance_m: 2.0 * LabelConfig::default().approach_clearance_m,
+    }
+}
+
+fn mean_share(scene: &Scene, labels: &[&GraspLabel], r: &RobustQuality, min: f32) -> f32 {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let gripper = GripperModel::default();
+    let sum: f32 = labels
+        .iter()
+        .map(|l| r.success_share(scene, &gripper, l, min, &mut rng))
+        .sum();
+    sum / labels.len() as f32
+}
+
+#[test]
+fn an_exact_execution_of_a_lone_cubes_label_always_holds_and_a_sloppy_one_often_fails() {
+    let scene = cube_scene(0.02);
+    let config = LabelConfig::quick();
+    let labels = labels_for(&scene, &config, 5);
+    let all: Vec<&GraspLabel> = labels.iter().collect();
+    let min = config.min_quality;
+    assert_eq!(mean_share(&scene, &all, &robust(0.0, 0.0, 4), min), 1.0);
+    let sloppy = mean_share(&scene, &all, &robust(0.02, 15.0, 16), min);
+    assert!(sloppy < 0.6, "2 cm and 15° off still hold {sloppy}");
+}
+
+#[test]
+fn grasps_that_fill_the_hands_opening_are_less_robust_than_grasps_with_room() {
+    // The same 5 cm tall box, 4 cm or 7 cm across x, grasped from above at 3–4 cm height (the
+    // fingertips well above the floor, the palm well above the box): across the wide box the
+    // 8 cm hand keeps 5 mm beside each face, across the narrow one 10 mm (the labeler's clearance).
+    let config = LabelConfig {
+        contacts_per_object: 400,
+        refine_samples_per_object: 2000,
+        ..LabelConfig::quick()
+    };
+    let shift_only = robust(0.004, 0.0, 32);
+    let share_across = |half_x: f32, min_width: f32, max_width: f32| {
+        let scene = single_object_scene(
+            Primitive::Cuboid {
+                half_extents: [half_x, 0.02, 0.025],
+            },
+            0.025,
+        );
+        let floor = scene.objects()[0]
+            .workspace_from_object
+            .translation
+            .vector
+            .z
+            - 0.025;
+        let labels = labels_for(&scene, &config, 9);
+        // Square pairs across x, executed from straight above only.
+        let across: Vec<GraspLabel> = labels
+            .iter()
+            .filter(|l| l.quality > 0.9 && l.baseline.x.abs() > 0.9)
+            .filter(|l| (min_width..max_width).contains(&l.width))
+            .filter(|l| {
+                (0.03..0.04).contains(&(0.5 * (l.contact.z + l.second_contact().z) - floor))
+            })
+            .filter_map(|l| {
+                let top_down = (0..N_APPROACHES)
+                    .find(|&i| l.collision_free[i] && l.grasp(i).approach.z < -0.95)?;
+                let mut only = *l;
+                only.collision_free = [false; N_APPROACHES];
+                only.collision_free[top_down] = true;
+                Some(only)
+            })
+            .collect();
+        assert!(across.len() >= 10, "{} labels across x", across.len());
+        let refs: Vec<&GraspLabel> = across.iter().collect();
+        mean_share(&scene, &refs, &shift_only, config.min_quality)
+    };
+    let roomy = share_across(0.02, 0.0, 0.05);
+    let tight = share_across(0.035, 0.065, 0.08);
+    assert!(
+        tight + 0.25 < roomy,
+        "filling the opening {tight}, with room {roomy}"
+    );
+}
+
+#[test]
+fn robust_quality_reranks_the_same_labels_deterministically() {
+    let scene = cube_scene(0.02);
+    let plain = LabelConfig::quick();
+    let robust_config = LabelConfig {
+        robust_quality: Some(RobustQuality::default()),
+        ..LabelConfig::quick()
+    };
+    let before = labels_for(&scene, &plain, 11);
+    let after = labels_for(&scene, &robust_config, 11);
+    assert_eq!(after, labels_for(&scene, &robust_config, 11));
+    assert_eq!(before.len(), after.len());
+    let mut lowered = 0;
+    for (b, a) in before.iter().zip(&after) {
+        assert_eq!(
+            (b.contact, b.baseline, b.width),
+            (a.contact, a.baseline, a.width)
+        );
+        assert_eq!(b.collision_free, a.collision_free);
+        assert!(a.quality >= plain.min_quality && a.quality <= b.quality + 1e-6);
+        lowered += usize::from(a.quality < b.quality - 1e-6);
+    }
+    assert!(lowered > 0, "no label lost quality to the perturbations");
+    for pair in after.chunks(2) {
+        assert_eq!(pair[0].quality, pair[1].quality, "a label and its mirror");
+    }
+    let text = serde_json::to_string(&plain).unwrap();
+    assert!(!text.contains("robust_quality"), "{text}");
+    let back: LabelConfig =
+        serde_json::from_str(&serde_json::to_string(&robust_config).unwrap()).unwrap();
+    assert_eq!(back, robust_config);
+    let bad = LabelConfig {
+        robust_quality: Some(robust(0.003, 90.0, 8)),
+        ..LabelConfig::quick()
+    };
+    assert_eq!(
+        bad.validate().unwrap_err().field,
+        "labels.robust_quality.angle_sigma_deg"
+    );
 }
