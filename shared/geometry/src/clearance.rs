@@ -47,10 +47,17 @@ impl HandClearance {
         )
     }
 
-    /// The opening for a grasp of `width`: `min(width + opening_clearance_m, max_opening_m)`.
+    /// The opening for a grasp of `width`: [`commanded_opening_m`] with this clearance.
     pub fn opening_m(&self, width: f32, max_opening_m: f32) -> f32 {
-        (width + self.opening_clearance_m).min(max_opening_m)
+        commanded_opening_m(width, self.opening_clearance_m, max_opening_m)
     }
+}
+
+/// The opening a hand is commanded to before it approaches a grasp of `width_m`:
+/// `min(width_m + opening_clearance_m, max_opening_m)` (selection, execution, and the label
+/// checks that stand in for them).
+pub fn commanded_opening_m(width_m: f32, opening_clearance_m: f32, max_opening_m: f32) -> f32 {
+    (width_m + opening_clearance_m).min(max_opening_m)
 }
 
 #[cfg(test)]

@@ -19,7 +19,7 @@ pub mod workspace;
 
 pub use bin::BinModel;
 pub use camera::{CameraIntrinsics, CameraModel};
-pub use clearance::HandClearance;
+pub use clearance::{commanded_opening_m, HandClearance};
 pub use depth::{DepthError, DepthImage, FrameSize, MAX_DEPTH_PIXELS, MAX_IMAGE_SIDE};
 pub use grasp::{
     antipodal_quality, approach_angles, approach_vectors, at_first_passing_lift,

@@ -60,7 +60,11 @@ impl ApproachPathCheck {
         workspace_from_gripper: &Isometry3<f32>,
         width_m: f32,
     ) -> [OrientedBox; 3] {
-        let opening = (width_m + self.opening_clearance_m).min(gripper.max_opening_m);
+        let opening = psgrasp_geometry::commanded_opening_m(
+            width_m,
+            self.opening_clearance_m,
+            gripper.max_opening_m,
+        );
         let half = 0.5 * self.distance_m;
         gripper.boxes_in_gripper_frame(opening).map(|b| {
             let stretched = OrientedBox {

@@ -14,7 +14,9 @@
 //! some perturbed execution holds, ranked by robustness among the good grasps.
 use crate::labels::GraspLabel;
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
-use psgrasp_geometry::{antipodal_quality, check_setting, GripperModel, OutOfRange};
+use psgrasp_geometry::{
+    antipodal_quality, check_setting, commanded_opening_m, GripperModel, OutOfRange,
+};
 use psgrasp_sim::Scene;
 use rand::Rng;
 use rand_distr::{Distribution, Normal, StandardNormal};
@@ -90,7 +92,8 @@ impl RobustQuality {
         if free.is_empty() || self.samples == 0 {
             return 0.0;
         }
-        let opening = (label.width + self.opening_clearance_m).min(gripper.max_opening_m);
+        let opening =
+            commanded_opening_m(label.width, self.opening_clearance_m, gripper.max_opening_m);
         let held = (0..self.samples)
             .filter(|&k| {
                 let pose = label.grasp(free[k % free.len()]).workspace_from_gripper();
