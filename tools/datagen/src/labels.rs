@@ -532,7 +532,7 @@ impl Labeller<'_> {
         if let Some(robust) = &self.config.robust_quality {
             let min = self.config.min_quality;
             let share = robust.success_share(self.scene, self.gripper, &label, min, robust_rng);
-            label.quality = RobustQuality::blend(label.quality, min, share);
+            label.quality = robust.blend(label.quality, min, share);
         }
         labels.push(label);
         if self.config.store_symmetric {

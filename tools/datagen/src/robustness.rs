@@ -10,8 +10,11 @@
 //! `opening_clearance_m`); a sample succeeds when the open hand is free of every object and the
 //! bin, and both fingers closing along the perturbed baseline meet the target at an antipodal
 //! pair (quality above the labeler's threshold). The stored quality becomes
-//! `threshold + (q − threshold)·s` for success share `s`: still above the threshold exactly when
-//! some perturbed execution holds, ranked by robustness among the good grasps.
+//! `threshold + (q − threshold)·s` for success share `s` (still above the threshold exactly when
+//! some perturbed execution holds), or with `max_drop` set `q − max_drop·(1 − s)`, which keeps the
+//! qualities' scale: the first form moved the stored mean from 0.90 to 0.69, and a network
+//! regressing to it predicts most grasps below the selection's 0.5 (docs/model.md, "Robust
+//! quality").
 use crate::labels::GraspLabel;
 use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use psgrasp_geometry::{
@@ -35,6 +38,10 @@ pub struct RobustQuality {
     /// The hand opens to the width plus this, capped at its maximum opening (m): the evaluation
     /// protocol's `[selection.clearance] opening_clearance_m`.
     pub opening_clearance_m: f32,
+    /// `Some(d)`: the stored quality is `q − d·(1 − share)` (at least 0). `None` (the default,
+    /// not written to manifests): `threshold + (q − threshold)·share`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_drop: Option<f32>,
 }
 
 impl Default for RobustQuality {
@@ -46,6 +53,7 @@ impl Default for RobustQuality {
             position_sigma_m: 0.003,
             angle_sigma_deg: 5.0,
             opening_clearance_m: 0.04,
+            max_drop: None,
         }
     }
 }
@@ -73,6 +81,12 @@ impl RobustQuality {
             self.angle_sigma_deg.is_finite() && (0.0..=45.0).contains(&self.angle_sigma_deg),
             "labels.robust_quality.angle_sigma_deg",
             "must lie in [0, 45] degrees",
+        )?;
+        check_setting(
+            self.max_drop
+                .is_none_or(|d| d.is_finite() && (0.0..=1.0).contains(&d)),
+            "labels.robust_quality.max_drop",
+            "must lie in [0, 1]",
         )
     }
 
@@ -111,9 +125,15 @@ impl RobustQuality {
         held as f32 / self.samples as f32
     }
 
-    /// `quality` blended towards `min_quality` by the success share: `min + (q − min)·share`.
-    pub fn blend(quality: f32, min_quality: f32, share: f32) -> f32 {
-        min_quality + (quality - min_quality) * share.clamp(0.0, 1.0)
+    /// The stored quality of a label of antipodal `quality` whose perturbed executions held
+    /// `share` of the time: `q − max_drop·(1 − share)` (at least 0) with `max_drop` set,
+    /// otherwise blended towards `min_quality`, `min + (q − min)·share`.
+    pub fn blend(&self, quality: f32, min_quality: f32, share: f32) -> f32 {
+        let share = share.clamp(0.0, 1.0);
+        match self.max_drop {
+            Some(drop) => (quality - drop * (1.0 - share)).max(0.0),
+            None => min_quality + (quality - min_quality) * share,
+        }
     }
 
     /// `pose` moved by a normal position error and turned by a normal angle about a uniformly
@@ -174,10 +194,19 @@ mod tests {
 
     #[test]
     fn blend_keeps_the_threshold_and_the_exact_quality_at_its_ends() {
-        assert_eq!(RobustQuality::blend(0.9, 0.5, 1.0), 0.9);
-        assert_eq!(RobustQuality::blend(0.9, 0.5, 0.0), 0.5);
-        assert!((RobustQuality::blend(0.9, 0.5, 0.5) - 0.7).abs() < 1e-6);
-        assert_eq!(RobustQuality::blend(0.9, 0.5, 7.0), 0.9);
+        let toward = RobustQuality::default();
+        assert_eq!(toward.blend(0.9, 0.5, 1.0), 0.9);
+        assert_eq!(toward.blend(0.9, 0.5, 0.0), 0.5);
+        assert!((toward.blend(0.9, 0.5, 0.5) - 0.7).abs() < 1e-6);
+        assert_eq!(toward.blend(0.9, 0.5, 7.0), 0.9);
+        let fixed = RobustQuality {
+            max_drop: Some(0.3),
+            ..toward
+        };
+        assert_eq!(fixed.blend(0.9, 0.5, 1.0), 0.9);
+        assert!((fixed.blend(0.9, 0.5, 0.0) - 0.6).abs() < 1e-6);
+        assert!((fixed.blend(0.6, 0.5, 0.5) - 0.45).abs() < 1e-6);
+        assert_eq!(fixed.blend(0.2, 0.5, 0.0), 0.0);
     }
 
     #[test]
@@ -202,6 +231,13 @@ mod tests {
                 ..d
             }),
             "labels.robust_quality.angle_sigma_deg"
+        );
+        assert_eq!(
+            bad(RobustQuality {
+                max_drop: Some(-0.1),
+                ..d
+            }),
+            "labels.robust_quality.max_drop"
         );
     }
 }

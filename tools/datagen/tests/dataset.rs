@@ -146,3 +146,30 @@ fn franka_fingertip_config_changes_the_tip_depth_only_and_typos_are_refused() {
     let err = toml::from_str::<GenerationConfig>(typo).unwrap_err();
     assert!(err.to_string().contains("griper"), "{err}");
 }
+
+#[test]
+fn every_shipped_datagen_config_loads_and_validates() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config");
+    let mut loaded = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().to_string();
+        if !(name.starts_with("datagen-") && name.ends_with(".toml")) {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let config: GenerationConfig =
+            toml::from_str(&text).unwrap_or_else(|e| panic!("{name}: {e}"));
+        config
+            .labels
+            .validate()
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let robust = config.labels.robust_quality;
+        assert_eq!(robust.is_some(), name.contains("robust"), "{name}");
+        if name.ends_with("-robust-drop.toml") {
+            assert_eq!(robust.unwrap().max_drop, Some(0.2));
+        }
+        loaded += 1;
+    }
+    assert!(loaded >= 8, "only {loaded} datagen configs");
+}

@@ -385,6 +385,7 @@ fn robust(position_sigma_m: f32, angle_sigma_deg: f32, samples: usize) -> Robust
         position_sigma_m,
         angle_sigma_deg,
         opening_clearance_m: 2.0 * LabelConfig::default().approach_clearance_m,
+        max_drop: None,
     }
 }
 
