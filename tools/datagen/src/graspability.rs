@@ -142,7 +142,11 @@ fn pose_blockers_lifted(
     let grasp = label.grasp(approach);
     let pose = grasp.workspace_from_gripper_lifted(lift_m);
     let object = label.object as usize;
-    let opening = (grasp.width + 2.0 * config.approach_clearance_m).min(gripper.max_opening_m);
+    let opening = psgrasp_geometry::commanded_opening_m(
+        grasp.width,
+        2.0 * config.approach_clearance_m,
+        gripper.max_opening_m,
+    );
     let mut blockers = 0u8;
     let mut add = |b: &psgrasp_geometry::OrientedBox, skip_self: bool| {
         let mut bin = false;

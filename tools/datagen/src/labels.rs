@@ -324,7 +324,11 @@ pub fn check_pose_lifted(
     lift_m: f32,
 ) -> PoseCheck {
     let pose = grasp.workspace_from_gripper_lifted(lift_m);
-    let opening = (grasp.width + 2.0 * config.approach_clearance_m).min(gripper.max_opening_m);
+    let opening = psgrasp_geometry::commanded_opening_m(
+        grasp.width,
+        2.0 * config.approach_clearance_m,
+        gripper.max_opening_m,
+    );
     for (k, b) in gripper.boxes(&pose, opening).iter().enumerate() {
         if scene.box_collides(b, None) {
             return if k == 0 {

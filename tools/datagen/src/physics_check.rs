@@ -116,7 +116,11 @@ impl LabelPhysicsCheck {
             .unwrap_or(0);
         GraspCommand {
             workspace_from_gripper: label.grasp(approach).workspace_from_gripper(),
-            opening_m: (label.width + 2.0 * self.opening_clearance_m).min(gripper.max_opening_m),
+            opening_m: psgrasp_geometry::commanded_opening_m(
+                label.width,
+                2.0 * self.opening_clearance_m,
+                gripper.max_opening_m,
+            ),
             pregrasp_distance_m: self.pregrasp_distance_m,
         }
     }

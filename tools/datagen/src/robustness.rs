@@ -20,6 +20,7 @@ use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use psgrasp_geometry::{
     antipodal_quality, check_setting, commanded_opening_m, GripperModel, OutOfRange,
 };
+use psgrasp_sim::execute::hand_collides;
 use psgrasp_sim::Scene;
 use rand::Rng;
 use rand_distr::{Distribution, Normal, StandardNormal};
@@ -165,11 +166,7 @@ fn holds(
     opening: f32,
     min_quality: f32,
 ) -> bool {
-    if gripper
-        .boxes(pose, opening)
-        .iter()
-        .any(|b| scene.box_collides(b, None))
-    {
+    if hand_collides(scene, gripper, pose, opening, 0.0) {
         return false;
     }
     let centre = Point3::from(pose.translation.vector);
