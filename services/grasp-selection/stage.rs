@@ -260,6 +260,7 @@ mod tests {
             collision_score: 0.3,
             configuration_index: 0,
             approach_index: 8,
+            pad_fill: None,
         };
         let base = psgrasp_geometry::RobotConfig::default()
             .resolve(0.0095)

@@ -11,7 +11,7 @@ pub mod occupancy;
 pub mod surface;
 
 pub use occupancy::{OccupancyConfig, OccupancyGrid, SceneCollisionChecker};
-pub use surface::cells_under_surface_in_box;
+pub use surface::{cells_under_surface_in_box, volume_share_under_surface};
 
 use psgrasp_fusion::GridError;
 use psgrasp_geometry::GeometryError;

@@ -19,6 +19,56 @@ pub fn cells_under_surface_in_box(
     let Some(g) = GrownBox::new(b, margin) else {
         return stop_at;
     };
+    let mut count = 0;
+    for_each_measured_column(map, &g, |height, (bottom, _)| {
+        if bottom > height {
+            return true;
+        }
+        count += 1;
+        count < stop_at
+    });
+    count
+}
+
+/// The share of `b`'s volume that lies under the measured surface of `map` (in a measured
+/// cell's column), sampled at the map's cell centres: 1 for a box buried in an object, 0 for
+/// one in free space above it. Cells without a measurement count as empty. `None` for an
+/// unusable box or one whose footprint holds no cell centre of the map.
+pub fn volume_share_under_surface(map: &HeightMapView<'_>, b: &OrientedBox) -> Option<f32> {
+    let g = GrownBox::new(b, 0.0)?;
+    let (mut inside, mut total) = (0.0f64, 0.0f64);
+    let mut cells = 0usize;
+    let mut add = |height: f32, (bottom, top): (f32, f32)| {
+        total += f64::from(top - bottom);
+        cells += 1;
+        if height.is_finite() {
+            inside += f64::from((height.min(top) - bottom).max(0.0));
+        }
+        true
+    };
+    for_each_column(map, &g, &mut add);
+    (cells > 0 && total > 0.0).then(|| (inside / total) as f32)
+}
+
+/// Calls `f(height, z interval of the box)` for every measured cell of `map` whose centre's
+/// vertical line meets `g`, until `f` returns `false`.
+fn for_each_measured_column(
+    map: &HeightMapView<'_>,
+    g: &GrownBox,
+    mut f: impl FnMut(f32, (f32, f32)) -> bool,
+) {
+    for_each_column(map, g, &mut |height, interval| {
+        height == f32::NEG_INFINITY || f(height, interval)
+    });
+}
+
+/// [`for_each_measured_column`] over every cell, measured or not (`height` is
+/// [`psgrasp_fusion::NO_HEIGHT`] where nothing was measured).
+fn for_each_column(
+    map: &HeightMapView<'_>,
+    g: &GrownBox,
+    f: &mut dyn FnMut(f32, (f32, f32)) -> bool,
+) {
     let geometry = &map.geometry;
     let s = geometry.cell_m;
     // Cells whose centre may lie inside the box's floor-plan bounds.
@@ -31,28 +81,19 @@ pub fn cells_under_surface_in_box(
         range(g.lo.x, g.hi.x, geometry.nx),
         range(g.lo.y, g.hi.y, geometry.ny),
     ) else {
-        return 0;
+        return;
     };
-    let mut count = 0;
     for i in i0..=i1 {
         let x = (i as f32 + 0.5) * s;
         for j in j0..=j1 {
-            let height = map.height(i, j);
-            if height == f32::NEG_INFINITY {
-                continue;
-            }
             let y = (j as f32 + 0.5) * s;
-            if g.z_interval(x, y)
-                .is_some_and(|(bottom, _)| bottom <= height)
-            {
-                count += 1;
-                if count >= stop_at {
-                    return count;
+            if let Some(interval) = g.z_interval(x, y) {
+                if !f(map.height(i, j), interval) {
+                    return;
                 }
             }
         }
     }
-    count
 }
 
 #[cfg(test)]
@@ -87,6 +128,45 @@ mod tests {
             ),
             half_extents: Vector3::new(0.0105, 0.013, 0.027),
         }
+    }
+
+    #[test]
+    fn the_volume_share_under_the_surface_of_boxes_in_and_around_a_block() {
+        let (geometry, heights) = block_map();
+        let map = HeightMapView {
+            geometry,
+            heights: &heights,
+        };
+        let block = |x: f32, y: f32, z: f32, half: [f32; 3]| OrientedBox {
+            parent_from_box: Isometry3::translation(x, y, z),
+            half_extents: Vector3::from(half),
+        };
+        let share = |b: &OrientedBox| volume_share_under_surface(&map, b).unwrap();
+        // Buried in the block (40 mm high over x, y ∈ [0.2, 0.26]): all of it.
+        assert_eq!(share(&block(0.23, 0.23, 0.02, [0.01, 0.01, 0.01])), 1.0);
+        // Above the block's top: none of it.
+        assert_eq!(share(&block(0.23, 0.23, 0.06, [0.01, 0.01, 0.01])), 0.0);
+        // Straddling the top (z ∈ [0.03, 0.05]): the lower half.
+        assert!((share(&block(0.23, 0.23, 0.04, [0.01, 0.01, 0.01])) - 0.5).abs() < 0.02);
+        // Straddling the block's −x side above the floor: the half over the block.
+        assert!((share(&block(0.2, 0.23, 0.02, [0.01, 0.01, 0.01])) - 0.5).abs() < 0.11);
+        // Tilted 45° about y, centred in the block's top face: the half below it.
+        let tilted = OrientedBox {
+            parent_from_box: Isometry3::from_parts(
+                Vector3::new(0.23, 0.23, 0.04).into(),
+                UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 0.25 * std::f32::consts::PI),
+            ),
+            half_extents: Vector3::new(0.008, 0.008, 0.008),
+        };
+        assert!((share(&tilted) - 0.5).abs() < 0.05, "{}", share(&tilted));
+        // Unmeasured cells count as empty: the map's cell (0, 0) has no height.
+        assert_eq!(
+            share(&block(0.001, 0.001, 0.0, [0.0005, 0.0005, 0.01])),
+            0.0
+        );
+        // Outside the map or unusable: no share.
+        assert!(volume_share_under_surface(&map, &block(-0.5, -0.5, 0.0, [0.01; 3])).is_none());
+        assert!(volume_share_under_surface(&map, &block(f32::NAN, 0.0, 0.0, [0.01; 3])).is_none());
     }
 
     #[test]

@@ -190,6 +190,21 @@ impl GripperModel {
         }
     }
 
+    /// What the pads close on for a grasp of `width_m`, gripper frame: the box between the two
+    /// contact planes (x = ±width/2), as wide as the fingers (y) and as long as the pads along
+    /// the approach (z within `tip_beyond_tcp_m` of the TCP; the pads are centred on it).
+    pub fn pad_closing_region(&self, width_m: f32) -> OrientedBox {
+        let [_, fw, _] = self.finger_size_m;
+        OrientedBox {
+            parent_from_box: Isometry3::identity(),
+            half_extents: Vector3::new(
+                0.5 * width_m.clamp(0.0, self.max_opening_m),
+                0.5 * fw,
+                self.tip_beyond_tcp_m,
+            ),
+        }
+    }
+
     /// True if any of `points` (workspace frame) lies inside the gripper boxes grown by `margin`.
     pub fn collides_with_points<'a>(
         &self,

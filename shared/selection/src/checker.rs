@@ -4,7 +4,9 @@
 //! and the fingers at the grasp pose against the depth frame's height map (when enabled).
 
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
-use psgrasp_collision::{cells_under_surface_in_box, CollisionError, OccupancyGrid};
+use psgrasp_collision::{
+    cells_under_surface_in_box, volume_share_under_surface, CollisionError, OccupancyGrid,
+};
 use psgrasp_fusion::HeightMapView;
 use psgrasp_geometry::{
     at_first_passing_lift, BinModel, GraspConfiguration, GripperModel, OrientedBox, N_APPROACHES,
@@ -175,8 +177,15 @@ impl<'a> GraspChecker<'a> {
                 collision_score: score,
                 configuration_index,
                 approach_index,
+                pad_fill: self.pad_fill(&pose, c.width),
             })
         })
+    }
+
+    /// [`SelectedGrasp::pad_fill`] of a grasp of `width` at `pose` (`None` without a height map).
+    fn pad_fill(&self, pose: &Isometry3<f32>, width: f32) -> Option<f32> {
+        let region = self.gripper.pad_closing_region(width).placed(pose);
+        volume_share_under_surface(self.surface.as_ref()?, &region)
     }
 
     /// The grasp pose, its pre-grasp backed off along −approach and the poses between them

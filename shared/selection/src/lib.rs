@@ -31,6 +31,7 @@ pub mod checker;
 pub mod fallback;
 pub mod order;
 pub mod overlap;
+mod pass;
 pub mod surface;
 
 pub use checker::GraspChecker;
@@ -38,6 +39,8 @@ pub use fallback::FallbackThresholds;
 pub use order::{grasp_centre, OrderSettings, PickOrder};
 pub use overlap::boxes_overlap;
 pub use surface::SurfaceCheck;
+
+use pass::{select_from, ObservedScene};
 
 use nalgebra::Isometry3;
 use psgrasp_collision::{CollisionError, OccupancyConfig, OccupancyGrid};
@@ -324,6 +327,11 @@ pub struct RejectionCounts {
     /// Configurations passed over because a better pick lies within `pick_spacing_m`.
     #[serde(default)]
     pub near_better_pick: usize,
+    /// Configurations whose pick was deferred behind the others because its pads would close on
+    /// too little measured surface ([`SurfaceCheck::defer_pad_fill_below`]; not a rejection: such
+    /// picks fill up `top_k` after the others).
+    #[serde(default)]
+    pub deferred_pad_fill: usize,
 }
 
 impl RejectionCounts {
@@ -377,6 +385,12 @@ pub struct SelectedGrasp {
     pub configuration_index: usize,
     /// Index of the chosen approach (0..18) within the configuration.
     pub approach_index: usize,
+    /// Share of what the pads close on ([`psgrasp_geometry::GripperModel::pad_closing_region`]
+    /// at the grasp pose) that lies under the frame's measured surface: near 1 when the pads
+    /// meet an object over their whole length, low when they close over its top or beside it.
+    /// `None` without the surface check's height map.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pad_fill: Option<f32>,
 }
 
 /// The result of [`select`].
@@ -460,14 +474,6 @@ pub fn select_observed(
     select_from(configs, scene, bin, gripper, cfg, pregrasp_free)
 }
 
-/// What selection tests the hand against besides the bin: the grid's occupied voxels and the
-/// frame's height map (either may be absent).
-#[derive(Debug, Clone, Copy, Default)]
-struct ObservedScene<'a> {
-    occupancy: Option<&'a OccupancyGrid>,
-    surface: Option<HeightMapView<'a>>,
-}
-
 /// [`select`] with a prebuilt occupancy grid (`None`: no scene check), e.g. shared with the
 /// inference backend.
 pub fn select_with_occupancy(
@@ -482,112 +488,4 @@ pub fn select_with_occupancy(
         surface: None,
     };
     select_from(configs, scene, bin, gripper, cfg, |_| true)
-}
-
-/// The selection behind [`select_filtered`] and [`select_with_occupancy`]: one pass at the
-/// primary thresholds, and a second at [`SelectionConfig::fallback`]'s when the first picks nothing.
-fn select_from(
-    configs: &[GraspConfiguration],
-    scene: ObservedScene<'_>,
-    bin: &BinModel,
-    gripper: &GripperModel,
-    cfg: &SelectionConfig,
-    mut pregrasp_free: impl FnMut(&SelectedGrasp) -> bool,
-) -> Result<Selection, SelectionError> {
-    let first = select_pass(configs, scene, bin, gripper, cfg, &mut pregrasp_free)?;
-    match &cfg.fallback {
-        Some(loose) if first.picks.is_empty() => {
-            let second_cfg = loose.applied_to(cfg);
-            let second = select_pass(configs, scene, bin, gripper, &second_cfg, pregrasp_free)?;
-            Ok(Selection {
-                fallback: true,
-                ..second
-            })
-        }
-        _ => Ok(first),
-    }
-}
-
-/// One selection pass at `cfg`'s thresholds.
-fn select_pass(
-    configs: &[GraspConfiguration],
-    scene: ObservedScene<'_>,
-    bin: &BinModel,
-    gripper: &GripperModel,
-    cfg: &SelectionConfig,
-    mut pregrasp_free: impl FnMut(&SelectedGrasp) -> bool,
-) -> Result<Selection, SelectionError> {
-    let checker =
-        GraspChecker::new(cfg, *gripper, *bin, scene.occupancy)?.with_surface(scene.surface);
-    let mut order: Vec<usize> = (0..configs.len()).collect();
-    // Priority descending (not finite: last, and rejected as invalid); ties by index.
-    let settings = OrderSettings {
-        cos_half_tolerance: (0.5 * cfg.baseline_tolerance_deg.to_radians()).cos(),
-        confident_kappa_above: cfg.confident_kappa_above,
-    };
-    let priority: Vec<f32> = configs
-        .iter()
-        .map(|c| cfg.pick_order.priority(c, bin, settings))
-        .collect();
-    let key = |i: usize| priority[i];
-    order.sort_by(|&a, &b| key(b).total_cmp(&key(a)).then(a.cmp(&b)));
-
-    let mut rejected = RejectionCounts::default();
-    let mut picks: Vec<SelectedGrasp> = Vec::new();
-    let mut lowest_taken = f32::INFINITY;
-    for (rank, &ci) in order.iter().enumerate() {
-        let c = &configs[ci];
-        // Enough picks, and this and every later configuration rank below all of them.
-        if picks.len() >= cfg.top_k && key(ci) < lowest_taken {
-            rejected.not_examined += order.len() - rank;
-            break;
-        }
-        if let Err(reason) = checker.check_configuration(c) {
-            rejected.add(reason);
-            continue;
-        }
-        let centre = grasp_centre(c).coords;
-        if cfg.pick_spacing_m > 0.0
-            && picks.iter().any(|p| {
-                (p.workspace_from_gripper.translation.vector - centre).norm() < cfg.pick_spacing_m
-            })
-        {
-            rejected.near_better_pick += 1;
-            continue;
-        }
-        let mut picked = false;
-        for &ai in c
-            .approaches_by_score()
-            .iter()
-            .take(cfg.approaches_per_configuration)
-        {
-            match checker.check_approach(c, ci, ai) {
-                Ok(pick) if !pregrasp_free(&pick) => {
-                    rejected.add(RejectionReason::PregraspCollision)
-                }
-                Ok(pick) => {
-                    picks.push(pick);
-                    lowest_taken = lowest_taken.min(key(ci));
-                    picked = true;
-                    break;
-                }
-                Err(reason) => rejected.add(reason),
-            }
-        }
-        if !picked {
-            rejected.no_valid_approach += 1;
-        }
-    }
-    picks.sort_by(|a, b| {
-        key(b.configuration_index)
-            .total_cmp(&key(a.configuration_index))
-            .then(b.collision_score.total_cmp(&a.collision_score))
-            .then(a.configuration_index.cmp(&b.configuration_index))
-    });
-    picks.truncate(cfg.top_k);
-    Ok(Selection {
-        picks,
-        rejected,
-        fallback: false,
-    })
 }

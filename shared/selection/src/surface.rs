@@ -29,6 +29,10 @@ pub struct SurfaceCheck {
     pub margin_m: f32,
     /// An approach is refused when at least this many cells' columns meet a finger.
     pub min_cells: usize,
+    /// Picks whose pads would close on less than this share of measured surface
+    /// ([`crate::SelectedGrasp::pad_fill`]) are deferred: handed out only after every pick that
+    /// reaches it, never refused. 0 (the default) defers nothing.
+    pub defer_pad_fill_below: f32,
 }
 
 impl Default for SurfaceCheck {
@@ -38,13 +42,14 @@ impl Default for SurfaceCheck {
             cell_m: 0.002,
             margin_m: 0.001,
             min_cells: 1,
+            defer_pad_fill_below: 0.0,
         }
     }
 }
 
 impl SurfaceCheck {
-    /// The cell size lies in [0.5, 20] mm, the margin in [−10, 10] mm, and at least one cell
-    /// counts.
+    /// The cell size lies in [0.5, 20] mm, the margin in [−10, 10] mm, at least one cell
+    /// counts, and the deferral's fill lies in [0, 1].
     pub fn validate(&self) -> Result<(), SelectionError> {
         check_setting(
             self.cell_m.is_finite() && (0.0005..=0.02).contains(&self.cell_m),
@@ -61,7 +66,19 @@ impl SurfaceCheck {
             "surface_check.min_cells",
             "must be at least 1",
         )?;
+        check_setting(
+            (0.0..=1.0).contains(&self.defer_pad_fill_below),
+            "surface_check.defer_pad_fill_below",
+            "must lie in [0, 1]",
+        )?;
         Ok(())
+    }
+
+    /// Whether `pick` goes after every pick whose pad fill reaches
+    /// [`SurfaceCheck::defer_pad_fill_below`] (a pick without a fill is never deferred).
+    pub fn defers(&self, pick: &crate::SelectedGrasp) -> bool {
+        pick.pad_fill
+            .is_some_and(|fill| fill < self.defer_pad_fill_below)
     }
 
     /// The height map's cells over `workspace` when enabled (`None`: no map).

@@ -217,6 +217,20 @@ fn an_enabled_check_needs_a_map_of_its_cells_and_sane_settings() {
             },
             "surface_check.min_cells",
         ),
+        (
+            SurfaceCheck {
+                defer_pad_fill_below: 1.5,
+                ..enabled()
+            },
+            "surface_check.defer_pad_fill_below",
+        ),
+        (
+            SurfaceCheck {
+                defer_pad_fill_below: f32::NAN,
+                ..enabled()
+            },
+            "surface_check.defer_pad_fill_below",
+        ),
     ] {
         match with_check(check).validate() {
             Err(SelectionError::InvalidConfig { field: f, .. }) => assert_eq!(f, field),
@@ -229,4 +243,85 @@ fn an_enabled_check_needs_a_map_of_its_cells_and_sane_settings() {
     let cfg = with_check(enabled());
     let back: SelectionConfig = toml::from_str(&toml::to_string(&cfg).unwrap()).unwrap();
     assert_eq!(back.surface_check, cfg.surface_check);
+}
+
+/// Picks whose pads would close over the block's top rather than on its sides go after those
+/// that meet the sides over the pads' whole length, and are still handed out.
+#[test]
+fn picks_closing_on_little_surface_are_deferred_not_refused() {
+    let block = [blocks()[0]];
+    let map = height_map(&block, 0.002);
+    let grid = grid(&block);
+    let view = || HeightMapView {
+        geometry: map.0,
+        heights: &map.1,
+    };
+    // At the block's top edge (50 mm): half of the pads' length lies above it. Halfway up
+    // (25 mm): all of it on the block. The top-edge grasp scores better.
+    let at_top = GraspConfiguration {
+        contact: Point3::new(0.268, 0.29, floor_z() + 0.05),
+        quality: 0.95,
+        ..grasp()
+    };
+    let halfway = GraspConfiguration {
+        contact: Point3::new(0.268, 0.29, floor_z() + 0.025),
+        quality: 0.9,
+        ..grasp()
+    };
+    let select = |configs: &[GraspConfiguration], defer: f32| {
+        let cfg = SelectionConfig {
+            pick_spacing_m: 0.0,
+            ..with_check(SurfaceCheck {
+                defer_pad_fill_below: defer,
+                ..enabled()
+            })
+        };
+        select_observed(
+            configs,
+            &grid.view(),
+            Some(view()),
+            &BinModel::default(),
+            &GripperModel::default(),
+            &cfg,
+            |_| true,
+        )
+        .unwrap()
+    };
+    let both = [at_top, halfway];
+    let plain = select(&both, 0.0);
+    assert_eq!(plain.picks.len(), 2, "{:?}", plain.rejected);
+    let fill = |s: &Selection, i: usize| s.picks[i].pad_fill.unwrap();
+    assert_eq!(plain.picks[0].configuration_index, 0);
+    assert!((fill(&plain, 0) - 0.5).abs() < 0.1, "{}", fill(&plain, 0));
+    assert!(fill(&plain, 1) > 0.95, "{}", fill(&plain, 1));
+    assert_eq!(plain.rejected.deferred_pad_fill, 0);
+    // Deferred below 0.7: the halfway grasp first, the top-edge one after it.
+    let deferred = select(&both, 0.7);
+    let order: Vec<usize> = deferred
+        .picks
+        .iter()
+        .map(|p| p.configuration_index)
+        .collect();
+    assert_eq!(order, [1, 0]);
+    assert_eq!(deferred.rejected.deferred_pad_fill, 1);
+    // Alone, a deferred grasp is still the pick.
+    let alone = select(&[at_top], 0.7);
+    assert_eq!(alone.picks.len(), 1);
+    assert_eq!(alone.rejected.deferred_pad_fill, 1);
+    // No height map, no fill: the check is off and nothing is deferred.
+    let off = select_observed(
+        &both,
+        &grid.view(),
+        None,
+        &BinModel::default(),
+        &GripperModel::default(),
+        &SelectionConfig {
+            pick_spacing_m: 0.0,
+            ..SelectionConfig::default()
+        },
+        |_| true,
+    )
+    .unwrap();
+    assert!(off.picks.iter().all(|p| p.pad_fill.is_none()));
+    assert_eq!(off.picks[0].configuration_index, 0);
 }

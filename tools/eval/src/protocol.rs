@@ -148,6 +148,14 @@ pub struct AttemptRecord {
     pub kappa: Option<f32>,
     /// Index of its approach (0..18).
     pub approach_index: usize,
+    /// Where the pick was: TCP, baseline and approach in the workspace frame (failure analysis;
+    /// absent in records before 2026-12-06).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pose: Option<PickPose>,
+    /// Share of the pads' closing region under the frame's measured surface
+    /// ([`psgrasp_selection::SelectedGrasp::pad_fill`]; absent without the surface check).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pad_fill: Option<f32>,
     /// Contact-to-contact width, metres.
     pub width_m: f32,
     /// Commanded opening, metres.
@@ -196,6 +204,30 @@ pub struct AttemptRecord {
     pub selection_ms: f64,
     /// Physics of the attempt, milliseconds.
     pub execution_ms: f64,
+}
+
+/// A pick's pose in the workspace frame, as recorded for failure analysis.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PickPose {
+    /// Tool centre point, metres.
+    pub tcp_m: [f32; 3],
+    /// Unit baseline (the gripper's x axis).
+    pub baseline: [f32; 3],
+    /// Unit approach (the gripper's z axis).
+    pub approach: [f32; 3],
+}
+
+impl PickPose {
+    /// The pose of `pick`.
+    pub fn of(pick: &psgrasp_selection::SelectedGrasp) -> Self {
+        let pose = &pick.workspace_from_gripper;
+        let axis = |v: nalgebra::Vector3<f32>| (pose.rotation * v).into();
+        Self {
+            tcp_m: pose.translation.vector.into(),
+            baseline: axis(nalgebra::Vector3::x()),
+            approach: axis(nalgebra::Vector3::z()),
+        }
+    }
 }
 
 /// What touched what when an approach stopped short of the grasp pose.
@@ -583,6 +615,8 @@ pub fn clear_scene(
             collision_score: pick.collision_score,
             kappa: configs.get(pick.configuration_index).map(|c| c.kappa),
             approach_index: pick.approach_index,
+            pose: Some(PickPose::of(pick)),
+            pad_fill: pick.pad_fill,
             width_m: pick.width,
             opening_m: pick.opening_m,
             outcome: r.outcome,

@@ -386,6 +386,8 @@ pub(crate) mod tests {
             collision_score: 1.0,
             kappa: Some(30.0),
             approach_index: 8,
+            pose: None,
+            pad_fill: Some(0.8),
             width_m: 0.03,
             opening_m: 0.05,
             outcome: GraspOutcome::Success,
