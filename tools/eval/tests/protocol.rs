@@ -168,6 +168,15 @@ fn oracle_executes_ground_truth_grasps_and_reports_what_is_left() {
             assert!(t.tcp_distance_m < 0.0, "{t:?}");
         }
         assert_eq!(r.approach_touch.is_some(), r.approach_contact, "{r:?}");
+        // The pick's pose is recorded: unit, orthogonal axes, the approach pointing down, the
+        // TCP inside the bin; no pad fill without the surface check's height map.
+        let pose = r.pose.expect("pose");
+        let unit = |v: [f32; 3]| nalgebra::Vector3::from(v);
+        let (b, a) = (unit(pose.baseline), unit(pose.approach));
+        assert!((b.norm() - 1.0).abs() < 1e-4 && (a.norm() - 1.0).abs() < 1e-4);
+        assert!(b.dot(&a).abs() < 1e-4 && a.z < 0.0, "{pose:?}");
+        assert!(pose.tcp_m[2] > 0.018 && pose.tcp_m[2] < 0.3, "{pose:?}");
+        assert_eq!(r.pad_fill, None);
     }
     let b = run_with(&oracle(), Difficulty::Easy, 0, 0, &proto);
     assert_eq!(outcome_key(&a), outcome_key(&b));
