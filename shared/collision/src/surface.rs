@@ -4,7 +4,7 @@
 //! size of the camera's pixels it resolves what the 9 mm voxel grid cannot (a finger overlapping
 //! an object's footprint by a few millimetres).
 use crate::occupancy::GrownBox;
-use psgrasp_fusion::HeightMapView;
+use psgrasp_fusion::{HeightMapView, NO_HEIGHT};
 use psgrasp_geometry::OrientedBox;
 
 /// How many cells of `map` have their column inside `b` grown by `margin` (negative: shrunk),
@@ -20,12 +20,13 @@ pub fn cells_under_surface_in_box(
         return stop_at;
     };
     let mut count = 0;
-    for_each_measured_column(map, &g, |height, (bottom, _)| {
-        if bottom > height {
-            return true;
+    for_each_column(map, &g, |height, (bottom, _)| {
+        // Unmeasured cells (NO_HEIGHT) hold nothing.
+        if height != NO_HEIGHT && bottom <= height {
+            count += 1;
+            return count < stop_at;
         }
-        count += 1;
-        count < stop_at
+        true
     });
     count
 }
@@ -37,37 +38,23 @@ pub fn cells_under_surface_in_box(
 pub fn volume_share_under_surface(map: &HeightMapView<'_>, b: &OrientedBox) -> Option<f32> {
     let g = GrownBox::new(b, 0.0)?;
     let (mut inside, mut total) = (0.0f64, 0.0f64);
-    let mut cells = 0usize;
-    let mut add = |height: f32, (bottom, top): (f32, f32)| {
+    for_each_column(map, &g, |height, (bottom, top)| {
         total += f64::from(top - bottom);
-        cells += 1;
         if height.is_finite() {
             inside += f64::from((height.min(top) - bottom).max(0.0));
         }
         true
-    };
-    for_each_column(map, &g, &mut add);
-    (cells > 0 && total > 0.0).then(|| (inside / total) as f32)
-}
-
-/// Calls `f(height, z interval of the box)` for every measured cell of `map` whose centre's
-/// vertical line meets `g`, until `f` returns `false`.
-fn for_each_measured_column(
-    map: &HeightMapView<'_>,
-    g: &GrownBox,
-    mut f: impl FnMut(f32, (f32, f32)) -> bool,
-) {
-    for_each_column(map, g, &mut |height, interval| {
-        height == f32::NEG_INFINITY || f(height, interval)
     });
+    (total > 0.0).then(|| (inside / total) as f32)
 }
 
-/// [`for_each_measured_column`] over every cell, measured or not (`height` is
-/// [`psgrasp_fusion::NO_HEIGHT`] where nothing was measured).
+/// Calls `f(height, z interval of the box)` for every cell of `map` whose centre's vertical
+/// line meets `g`, until `f` returns `false` (`height` is [`NO_HEIGHT`] where nothing was
+/// measured).
 fn for_each_column(
     map: &HeightMapView<'_>,
     g: &GrownBox,
-    f: &mut dyn FnMut(f32, (f32, f32)) -> bool,
+    mut f: impl FnMut(f32, (f32, f32)) -> bool,
 ) {
     let geometry = &map.geometry;
     let s = geometry.cell_m;
@@ -100,7 +87,7 @@ fn for_each_column(
 mod tests {
     use super::*;
     use nalgebra::{Isometry3, UnitQuaternion, Vector3};
-    use psgrasp_fusion::{HeightMapGeometry, NO_HEIGHT};
+    use psgrasp_fusion::HeightMapGeometry;
     use psgrasp_geometry::Workspace;
 
     /// A 2 mm map of the default workspace: floor at z = 0 everywhere, and a block 40 mm high
