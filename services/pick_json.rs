@@ -27,6 +27,7 @@ pub fn pick_json(frame_id: u64, p: &PickRecord) -> Value {
         "configuration_index": p.configuration_index,
         "approach_index": p.approach_index,
         "fallback": p.fallback != 0,
+        "pad_fill": p.pad_fill(),
         "workspace": {
             "tcp": pose(p.position, p.orientation_xyzw),
             "pregrasp_tcp": pose(p.pregrasp_position, p.orientation_xyzw),
@@ -61,30 +62,35 @@ pub fn pick_from_json(v: &Value) -> Option<PickRecord> {
     let p3 = |v: &Value| arr(v, 3).map(|a| [a[0], a[1], a[2]]);
     let q4 = |v: &Value| arr(v, 4).map(|a| [a[0], a[1], a[2], a[3]]);
     let (w, b) = (&v["workspace"], &v["base"]);
-    Some(PickRecord {
-        position: p3(&w["tcp"]["position_m"])?,
-        orientation_xyzw: q4(&w["tcp"]["orientation_xyzw"])?,
-        pregrasp_position: p3(&w["pregrasp_tcp"]["position_m"])?,
-        width: f(&v["width_m"])?,
-        quality: f(&v["quality"])?,
-        collision_score: f(&v["collision_score"])?,
-        configuration_index: v["configuration_index"].as_u64()? as u32,
-        approach_index: v["approach_index"].as_u64()? as u32,
-        rank: v["rank"].as_u64()? as u32,
-        // Absent in JSON written before the fallback tier existed: a primary pick.
-        fallback: v["fallback"].as_bool().unwrap_or(false) as u32,
-        contact: p3(&w["contact_m"])?,
-        base_calibrated: b["calibrated"].as_bool()? as u32,
-        base_position: p3(&b["tcp"]["position_m"])?,
-        base_orientation_xyzw: q4(&b["tcp"]["orientation_xyzw"])?,
-        base_pregrasp_position: p3(&b["pregrasp_tcp"]["position_m"])?,
-        flange_position: p3(&b["flange"]["position_m"])?,
-        flange_orientation_xyzw: q4(&b["flange"]["orientation_xyzw"])?,
-        flange_pregrasp_position: p3(&b["pregrasp_flange"]["position_m"])?,
-        camera_position: p3(&b["camera"]["position_m"])?,
-        camera_orientation_xyzw: q4(&b["camera"]["orientation_xyzw"])?,
-        reserved: [0; 2],
-    })
+    Some(
+        PickRecord {
+            position: p3(&w["tcp"]["position_m"])?,
+            orientation_xyzw: q4(&w["tcp"]["orientation_xyzw"])?,
+            pregrasp_position: p3(&w["pregrasp_tcp"]["position_m"])?,
+            width: f(&v["width_m"])?,
+            quality: f(&v["quality"])?,
+            collision_score: f(&v["collision_score"])?,
+            configuration_index: v["configuration_index"].as_u64()? as u32,
+            approach_index: v["approach_index"].as_u64()? as u32,
+            rank: v["rank"].as_u64()? as u32,
+            // Absent in JSON written before the fallback tier existed: a primary pick.
+            fallback: v["fallback"].as_bool().unwrap_or(false) as u32,
+            contact: p3(&w["contact_m"])?,
+            base_calibrated: b["calibrated"].as_bool()? as u32,
+            base_position: p3(&b["tcp"]["position_m"])?,
+            base_orientation_xyzw: q4(&b["tcp"]["orientation_xyzw"])?,
+            base_pregrasp_position: p3(&b["pregrasp_tcp"]["position_m"])?,
+            flange_position: p3(&b["flange"]["position_m"])?,
+            flange_orientation_xyzw: q4(&b["flange"]["orientation_xyzw"])?,
+            flange_pregrasp_position: p3(&b["pregrasp_flange"]["position_m"])?,
+            camera_position: p3(&b["camera"]["position_m"])?,
+            camera_orientation_xyzw: q4(&b["camera"]["orientation_xyzw"])?,
+            pad_fill: 0.0,
+            pad_fill_measured: 0,
+        }
+        // Absent (or null) in JSON written before the pad fill was sent: not measured.
+        .with_pad_fill(f(&v["pad_fill"])),
+    )
 }
 
 #[cfg(test)]
@@ -131,6 +137,12 @@ mod tests {
         let v = pick_json(9, &weak);
         assert_eq!(v["fallback"], true);
         assert_eq!(pick_from_json(&v).unwrap(), weak);
+        // The pad fill: null when not measured, its value (bit for bit back) when it was.
+        assert_eq!(v["pad_fill"], Value::Null);
+        let edge = p.with_pad_fill(Some(0.43));
+        let v = pick_json(9, &edge);
+        assert!((v["pad_fill"].as_f64().unwrap() - 0.43).abs() < 1e-6);
+        assert_eq!(pick_from_json(&v).unwrap(), edge);
         let m = &v["base"]["tcp"]["matrix"];
         assert_eq!(m[3], json!([0.0, 0.0, 0.0, 1.0]));
         assert!((m[0][3].as_f64().unwrap() - p.base_position[0] as f64).abs() < 1e-6);

@@ -205,6 +205,14 @@ fn every_controller_interface_hands_out_the_same_pick() {
         last.header.error_text()
     );
     assert!(last.picks.len() >= 3, "the test needs three picks");
+    // The shipped config's surface check measures every pick's pad fill, and it crosses the
+    // shared memory with the pick (the interfaces below hand it on: HTTP = CLI = this record).
+    assert!(
+        last.picks
+            .iter()
+            .all(|p| p.pad_fill().is_some_and(|f| (0.0..=1.0).contains(&f))),
+        "every pick carries its measured pad fill"
+    );
 
     // The same pick through every interface (none of them moves the cursor).
     let from_cli = cli_next_pick(&config, None);

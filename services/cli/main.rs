@@ -477,12 +477,12 @@ fn detect(
 
 /// The picks as a Markdown table (workspace and robot base frame).
 fn print_picks(picks: &[psgrasp_ipc::PickRecord], top: usize) {
-    println!("| rank | TCP (m, workspace) | TCP (m, robot base) | approach | width (mm) | quality | collision score |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| rank | TCP (m, workspace) | TCP (m, robot base) | approach | width (mm) | quality | collision score | pad fill |");
+    println!("|---|---|---|---|---|---|---|---|");
     for p in picks.iter().take(top) {
         let a = p.approach();
         println!(
-            "| {} | ({:.3}, {:.3}, {:.3}) | ({:.3}, {:.3}, {:.3}) | ({:+.2}, {:+.2}, {:+.2}) | {:.1} | {:.2} | {:.2} |",
+            "| {} | ({:.3}, {:.3}, {:.3}) | ({:.3}, {:.3}, {:.3}) | ({:+.2}, {:+.2}, {:+.2}) | {:.1} | {:.2} | {:.2} | {} |",
             p.rank,
             p.position[0],
             p.position[1],
@@ -495,7 +495,9 @@ fn print_picks(picks: &[psgrasp_ipc::PickRecord], top: usize) {
             a.z,
             p.width * 1000.0,
             p.quality,
-            p.collision_score
+            p.collision_score,
+            p.pad_fill()
+                .map_or_else(|| "–".to_string(), |f| format!("{f:.2}"))
         );
     }
 }

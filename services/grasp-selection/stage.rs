@@ -87,20 +87,23 @@ pub fn pick_records(
         .iter()
         .take(max)
         .enumerate()
-        .map(|(rank, p)| PickRecord {
-            fallback: u32::from(selection.fallback),
-            ..PickRecord::new(
-                &p.workspace_from_gripper,
-                &p.pregrasp,
-                &configs[p.configuration_index].contact,
-                p.width,
-                p.quality,
-                p.collision_score,
-                p.configuration_index as u32,
-                p.approach_index as u32,
-                rank as u32,
-                base,
-            )
+        .map(|(rank, p)| {
+            PickRecord {
+                fallback: u32::from(selection.fallback),
+                ..PickRecord::new(
+                    &p.workspace_from_gripper,
+                    &p.pregrasp,
+                    &configs[p.configuration_index].contact,
+                    p.width,
+                    p.quality,
+                    p.collision_score,
+                    p.configuration_index as u32,
+                    p.approach_index as u32,
+                    rank as u32,
+                    base,
+                )
+            }
+            .with_pad_fill(p.pad_fill)
         })
         .collect()
 }
@@ -239,7 +242,7 @@ mod tests {
     use psgrasp_selection::SelectedGrasp;
 
     #[test]
-    fn pick_records_say_whether_the_selection_fell_back() {
+    fn pick_records_say_whether_the_selection_fell_back_and_their_pad_fill() {
         let config = GraspConfiguration {
             contact: Point3::new(0.2, 0.25, 0.06),
             baseline: Vector3::x(),
@@ -266,7 +269,8 @@ mod tests {
             .resolve(0.0095)
             .unwrap()
             .base_frame(&Isometry3::identity());
-        for fallback in [false, true] {
+        for (fallback, pad_fill) in [(false, None), (true, Some(0.62))] {
+            let pick = SelectedGrasp { pad_fill, ..pick };
             let selection = Selection {
                 picks: vec![pick, pick],
                 rejected: Default::default(),
@@ -275,7 +279,8 @@ mod tests {
             let records = pick_records(&selection, &[config], 1, &base);
             assert_eq!(records.len(), 1);
             assert_eq!(records[0].fallback, u32::from(fallback));
-            assert_eq!(records[0].reserved, [0; 2]);
+            assert_eq!(records[0].pad_fill(), pad_fill);
+            assert_eq!(records[0].pad_fill_measured, u32::from(pad_fill.is_some()));
             assert_eq!(records[0].approach_index, 8);
         }
     }

@@ -104,8 +104,13 @@ pub struct PickRecord {
     /// 1 if the pick comes from selection's fallback tier (`[selection.fallback]`: nothing on the
     /// frame passed the primary quality and collision-score thresholds), else 0.
     pub fallback: u32,
-    /// Reserved, zero.
-    pub reserved: [u32; 2],
+    /// Share of the region the pads close on that lies under the frame's measured surface
+    /// (selection's pad fill, 0..1; `[selection.surface_check]`), valid if `pad_fill_measured`
+    /// is 1. A low fill is a pick that closes on an edge or on little of its object.
+    pub pad_fill: f32,
+    /// 1 if `pad_fill` was measured (the surface check on and the pads over the height map), else
+    /// 0 (the two were reserved zeros before, so an older sender reads as "not measured").
+    pub pad_fill_measured: u32,
 }
 
 fn xyzw(q: &UnitQuaternion<f64>) -> [f32; 4] {
@@ -157,7 +162,22 @@ impl PickRecord {
             camera_position: position(&base.camera_in_base),
             camera_orientation_xyzw: xyzw(&base.camera_in_base.rotation),
             fallback: 0,
-            reserved: [0; 2],
+            pad_fill: 0.0,
+            pad_fill_measured: 0,
+        }
+    }
+
+    /// The pick's pad fill, if it was measured.
+    pub fn pad_fill(&self) -> Option<f32> {
+        (self.pad_fill_measured != 0).then_some(self.pad_fill)
+    }
+
+    /// The record with pad fill `fill` (`None`: not measured).
+    pub fn with_pad_fill(self, fill: Option<f32>) -> Self {
+        Self {
+            pad_fill: fill.unwrap_or(0.0),
+            pad_fill_measured: u32::from(fill.is_some()),
+            ..self
         }
     }
 
