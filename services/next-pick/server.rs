@@ -283,4 +283,33 @@ mod tests {
         assert!(PickCursor::load(&path).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
+
+    #[test]
+    fn a_state_file_saved_before_picks_carried_their_pad_fill_still_loads() {
+        let dir = std::env::temp_dir().join(format!("psgrasp-cursor-old-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("state.json");
+        let mut c = PickCursor::default();
+        let p: Vec<PickRecord> = picks(2)
+            .into_iter()
+            .map(|p| p.with_pad_fill(Some(0.8)))
+            .collect();
+        c.offer(7, &p);
+        // The previous version's form: two reserved words where the pad fill is now.
+        let mut v = serde_json::to_value(&c).unwrap();
+        for pick in v["latest"][1].as_array_mut().unwrap() {
+            let pick = pick.as_object_mut().unwrap();
+            assert!(
+                pick.remove("pad_fill").is_some() && pick.remove("pad_fill_measured").is_some()
+            );
+            pick.insert("reserved".into(), serde_json::json!([0, 0]));
+        }
+        std::fs::write(&path, serde_json::to_vec(&v).unwrap()).unwrap();
+        let mut restored = PickCursor::load(&path).unwrap();
+        let r = restored.answer(Some(NextPickMode::Current), 0);
+        assert_eq!((r.frame_id, rank(r)), (7, Some(0)));
+        assert_eq!(r.pick.pad_fill(), None, "an old record reads as unmeasured");
+        assert_eq!(r.pick, p[0].with_pad_fill(None));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

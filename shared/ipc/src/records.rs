@@ -107,9 +107,12 @@ pub struct PickRecord {
     /// Share of the region the pads close on that lies under the frame's measured surface
     /// (selection's pad fill, 0..1; `[selection.surface_check]`), valid if `pad_fill_measured`
     /// is 1. A low fill is a pick that closes on an edge or on little of its object.
+    #[serde(default)]
     pub pad_fill: f32,
     /// 1 if `pad_fill` was measured (the surface check on and the pads over the height map), else
-    /// 0 (the two were reserved zeros before, so an older sender reads as "not measured").
+    /// 0 (the two were reserved zeros before, so an older sender reads as "not measured"; in
+    /// serialized records saved before them, e.g. a next-pick state file, they default so).
+    #[serde(default)]
     pub pad_fill_measured: u32,
 }
 
