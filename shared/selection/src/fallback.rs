@@ -8,7 +8,7 @@
 //! score is what tells an object's grasp from a grasp of the bin's wall or rim); the selection marks picks made under them ([`crate::Selection::fallback`]) so a
 //! controller can treat them differently (e.g. slower approach, or ask for a new view first).
 
-use psgrasp_geometry::check_setting;
+use psgrasp_geometry::{check_setting, N_APPROACHES};
 use serde::{Deserialize, Serialize};
 
 use crate::{SelectionConfig, SelectionError};
@@ -26,6 +26,12 @@ pub struct FallbackThresholds {
     /// collision score is what tells a grasp of an object from a grasp of the bin.
     #[serde(default = "default_wall_distance")]
     pub min_contact_wall_distance_m: f32,
+    /// Approaches tried per configuration in the fallback tier, best collision score first
+    /// (1..=18). `None` (default, and then not written): the primary tier's
+    /// `approaches_per_configuration`. More approaches give a frame where every best approach is
+    /// blocked by the bin or a neighbour a pick from another direction.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub approaches_per_configuration: Option<usize>,
 }
 
 /// [`FallbackThresholds::min_contact_wall_distance_m`]'s default, metres.
@@ -54,6 +60,12 @@ impl FallbackThresholds {
             "fallback.min_contact_wall_distance_m",
             "must lie in [0, 0.2) m",
         )?;
+        check_setting(
+            self.approaches_per_configuration
+                .is_none_or(|n| (1..=N_APPROACHES).contains(&n)),
+            "fallback.approaches_per_configuration",
+            "must lie in 1..=18",
+        )?;
         Ok(())
     }
 
@@ -65,6 +77,9 @@ impl FallbackThresholds {
             min_contact_wall_distance_m: self
                 .min_contact_wall_distance_m
                 .max(primary.min_contact_wall_distance_m),
+            approaches_per_configuration: self
+                .approaches_per_configuration
+                .unwrap_or(primary.approaches_per_configuration),
             fallback: None,
             ..primary.clone()
         }
@@ -82,20 +97,24 @@ mod tests {
             min_quality: 0.2,
             min_collision_score: 0.5,
             min_contact_wall_distance_m: 0.0,
+            approaches_per_configuration: Some(18),
         };
         assert!(ok.validate(&primary).is_ok());
         for bad in [
-            (0.6, 0.2, 0.01),
-            (0.2, 0.7, 0.01),
-            (-0.1, 0.2, 0.01),
-            (0.2, f32::NAN, 0.01),
-            (0.2, 0.2, -0.01),
-            (0.2, 0.2, 0.5),
+            (0.6, 0.2, 0.01, None),
+            (0.2, 0.7, 0.01, None),
+            (-0.1, 0.2, 0.01, None),
+            (0.2, f32::NAN, 0.01, None),
+            (0.2, 0.2, -0.01, None),
+            (0.2, 0.2, 0.5, None),
+            (0.2, 0.2, 0.01, Some(0)),
+            (0.2, 0.2, 0.01, Some(19)),
         ] {
             let f = FallbackThresholds {
                 min_quality: bad.0,
                 min_collision_score: bad.1,
                 min_contact_wall_distance_m: bad.2,
+                approaches_per_configuration: bad.3,
             };
             assert!(f.validate(&primary).is_err(), "{bad:?} accepted");
         }
@@ -109,10 +128,20 @@ mod tests {
                 min_quality: 0.25,
                 min_collision_score: 0.2,
                 min_contact_wall_distance_m: 0.01,
+                approaches_per_configuration: None,
             }),
             ..SelectionConfig::default()
         };
         let second = primary.fallback.unwrap().applied_to(&primary);
+        assert_eq!(
+            second.approaches_per_configuration,
+            primary.approaches_per_configuration
+        );
+        let wider = FallbackThresholds {
+            approaches_per_configuration: Some(18),
+            ..primary.fallback.unwrap()
+        };
+        assert_eq!(wider.applied_to(&primary).approaches_per_configuration, 18);
         assert_eq!(second.min_quality, 0.25);
         assert_eq!(second.min_collision_score, 0.2);
         assert_eq!(second.min_contact_wall_distance_m, 0.01);

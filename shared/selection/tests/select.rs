@@ -675,6 +675,7 @@ fn the_default_config_writes_no_lifts_tolerance_or_fallback_so_stored_configurat
             min_quality: 0.3,
             min_collision_score: 0.2,
             min_contact_wall_distance_m: 0.01,
+            approaches_per_configuration: None,
         }),
         ..SelectionConfig::default()
     };
@@ -692,6 +693,7 @@ fn the_fallback_tier_picks_only_when_nothing_passes_the_primary_thresholds() {
         min_quality: 0.25,
         min_collision_score: 0.25,
         min_contact_wall_distance_m: 0.0,
+        approaches_per_configuration: None,
     };
     let with_fallback = SelectionConfig {
         fallback: Some(loose),
@@ -756,6 +758,7 @@ fn the_fallback_tier_picks_only_when_nothing_passes_the_primary_thresholds() {
             min_quality: 0.6,
             min_collision_score: 0.25,
             min_contact_wall_distance_m: 0.0,
+            approaches_per_configuration: None,
         }),
         ..SelectionConfig::default()
     };
@@ -768,4 +771,43 @@ fn the_fallback_tier_picks_only_when_nothing_passes_the_primary_thresholds() {
     )
     .unwrap_err();
     assert!(err.to_string().contains("fallback.min_quality"), "{err}");
+}
+
+#[test]
+fn the_fallback_tier_may_look_past_the_primary_tiers_approaches() {
+    let grid = scene(&[]);
+    // Under the paper's 0.5 everywhere: the eight best-scored approaches lie 58–90° from straight
+    // down (beyond a 45° reachability cone), the two straight-down ones (8, 9) come ninth and tenth.
+    let mut sideways_first = config([0.288, 0.25, 0.06], 0.9, &DOWN, 0.3);
+    for i in [0, 1, 2, 3, 14, 15, 16, 17] {
+        sideways_first.collision_scores[i] = 0.4;
+    }
+    let fallback = |approaches| SelectionConfig {
+        fallback: Some(FallbackThresholds {
+            min_quality: 0.25,
+            min_collision_score: 0.25,
+            min_contact_wall_distance_m: 0.0,
+            approaches_per_configuration: approaches,
+        }),
+        max_approach_tilt_deg: 45.0,
+        ..SelectionConfig::default()
+    };
+    // The primary tier's eight approaches: every one is tilted out of reach.
+    let sel = run(&[sideways_first], &grid, &fallback(None));
+    assert!(sel.picks.is_empty() && sel.fallback);
+    assert_eq!(sel.rejected.tilt, 8, "{:?}", sel.rejected);
+    // All eighteen in the fallback tier: the pick comes straight down.
+    let sel = run(&[sideways_first], &grid, &fallback(Some(18)));
+    assert!(sel.fallback);
+    assert_eq!(sel.picks.len(), 1, "{:?}", sel.rejected);
+    assert!(DOWN.contains(&sel.picks[0].approach_index));
+    // The primary tier itself keeps its eight: strong scores behind eight sideways ones are
+    // found only by the second pass, and the pick says so.
+    let mut strong_sideways = config([0.288, 0.25, 0.06], 0.9, &DOWN, 0.9);
+    for i in [0, 1, 2, 3, 14, 15, 16, 17] {
+        strong_sideways.collision_scores[i] = 0.95;
+    }
+    let sel = run(&[strong_sideways], &grid, &fallback(Some(18)));
+    assert_eq!(sel.picks.len(), 1, "{:?}", sel.rejected);
+    assert!(sel.fallback);
 }
