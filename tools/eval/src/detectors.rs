@@ -169,6 +169,12 @@ pub struct DetectorSpec {
     /// configurations by quality; a row with another order is labelled as such).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub selection_pick_order: Option<PickOrder>,
+    /// Sets the protocol's `[selection] min_contact_wall_distance_m` for this detector only:
+    /// contacts closer than this to a side wall's inner face (or beyond it) are refused in the
+    /// primary tier too (the paper's protocol admits contacts up to `bin_contact_tolerance_m`
+    /// beyond it; a row with it is labelled as such).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub selection_min_contact_wall_distance_m: Option<f32>,
 }
 
 /// The detector list file: `[[detector]]` tables.
@@ -191,6 +197,7 @@ impl DetectorSpec {
             selection_fallback: None,
             selection_surface_check: None,
             selection_pick_order: None,
+            selection_min_contact_wall_distance_m: None,
         }
     }
 
@@ -210,6 +217,7 @@ impl DetectorSpec {
             selection_fallback: None,
             selection_surface_check: None,
             selection_pick_order: None,
+            selection_min_contact_wall_distance_m: None,
         }
     }
 
@@ -225,6 +233,7 @@ impl DetectorSpec {
             selection_fallback: None,
             selection_surface_check: None,
             selection_pick_order: None,
+            selection_min_contact_wall_distance_m: None,
         }
     }
 
@@ -246,6 +255,7 @@ impl DetectorSpec {
         if self.selection_fallback.is_some()
             || self.selection_surface_check.is_some()
             || self.selection_pick_order.is_some()
+            || self.selection_min_contact_wall_distance_m.is_some()
         {
             // Against the selection this detector gets under the default protocol (its own
             // `min_quality` applied); the protocol it runs under is checked again when it selects.
@@ -287,9 +297,8 @@ impl DetectorSpec {
         }
     }
 
-    /// The protocol this detector runs under: `protocol` with [`DetectorSpec::min_quality`],
-    /// [`DetectorSpec::selection_fallback`], [`DetectorSpec::selection_surface_check`] and
-    /// [`DetectorSpec::selection_pick_order`] applied to the cell's selection.
+    /// The protocol this detector runs under: `protocol` with [`DetectorSpec::min_quality`] and
+    /// the detector's `selection_*` overrides applied to the cell's selection.
     pub fn protocol(&self, protocol: &ProtocolConfig) -> ProtocolConfig {
         let mut p = protocol.clone();
         if let Some(q) = self.min_quality {
@@ -303,6 +312,9 @@ impl DetectorSpec {
         }
         if let Some(o) = self.selection_pick_order {
             p.scenes.cell.selection.pick_order = o;
+        }
+        if let Some(d) = self.selection_min_contact_wall_distance_m {
+            p.scenes.cell.selection.min_contact_wall_distance_m = d;
         }
         p
     }
@@ -523,6 +535,26 @@ mod tests {
             );
             assert!(DetectorList::from_toml(&text).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn a_detector_s_wall_distance_reaches_its_protocol_only() {
+        let list = DetectorList::from_toml(
+            "[[detector]]\nname = \"plain\"\nbackend = { kind = \"analytic\" }\n\
+             [[detector]]\nname = \"walls\"\nbackend = { kind = \"analytic\" }\n\
+             selection_min_contact_wall_distance_m = 0.005\n",
+        )
+        .unwrap();
+        let protocol = ProtocolConfig::default();
+        assert_eq!(list.detectors[0].protocol(&protocol), protocol);
+        let walls = list.detectors[1].protocol(&protocol);
+        assert_eq!(
+            walls.scenes.cell.selection.min_contact_wall_distance_m,
+            0.005
+        );
+        let text = "[[detector]]\nname = \"x\"\nbackend = { kind = \"analytic\" }\n\
+                    selection_min_contact_wall_distance_m = -0.01\n";
+        assert!(DetectorList::from_toml(text).is_err());
     }
 
     #[test]

@@ -40,6 +40,7 @@ fn oracle() -> DetectorSpec {
         selection_fallback: None,
         selection_surface_check: None,
         selection_pick_order: None,
+        selection_min_contact_wall_distance_m: None,
     }
 }
 
