@@ -24,6 +24,9 @@ struct PrintedPick {
     calibrated: u32,
     tcp: [f32; 7],
     flange: [f32; 7],
+    /// `psgrasp_last_pick_details`: fallback flag and pad fill (`None`: unmeasured).
+    fallback: u32,
+    pad_fill: Option<f32>,
 }
 
 fn parse_printed(out: &str) -> Option<PrintedPick> {
@@ -32,6 +35,7 @@ fn parse_printed(out: &str) -> Option<PrintedPick> {
     let mut calibrated = None;
     let mut tcp = None;
     let mut flange = None;
+    let mut details = None;
     for line in out.lines() {
         let words: Vec<&str> = line.split_whitespace().collect();
         let pose = || -> Option<[f32; 7]> {
@@ -49,6 +53,12 @@ fn parse_printed(out: &str) -> Option<PrintedPick> {
             }
             Some(&"tcp") => tcp = pose(),
             Some(&"flange") => flange = pose(),
+            Some(&"details") => {
+                let fallback: u32 = words.get(2)?.parse().ok()?;
+                let measured: u32 = words.get(4)?.parse().ok()?;
+                let fill: f64 = words.get(6)?.parse().ok()?;
+                details = Some((fallback, (measured == 1).then_some(fill as f32)));
+            }
             _ => {}
         }
     }
@@ -58,6 +68,8 @@ fn parse_printed(out: &str) -> Option<PrintedPick> {
         calibrated: calibrated?,
         tcp: tcp?,
         flange: flange?,
+        fallback: details?.0,
+        pad_fill: details?.1,
     })
 }
 
@@ -69,6 +81,8 @@ fn printed_of(frame_id: u64, p: &PickRecord) -> PrintedPick {
         calibrated: p.base_calibrated,
         tcp: pose(p.base_position, p.base_orientation_xyzw),
         flange: pose(p.flange_position, p.flange_orientation_xyzw),
+        fallback: p.fallback,
+        pad_fill: p.pad_fill(),
     }
 }
 
@@ -206,7 +220,8 @@ fn every_controller_interface_hands_out_the_same_pick() {
     );
     assert!(last.picks.len() >= 3, "the test needs three picks");
     // The shipped config's surface check measures every pick's pad fill, and it crosses the
-    // shared memory with the pick (the interfaces below hand it on: HTTP = CLI = this record).
+    // shared memory with the pick (the interfaces below hand it on: HTTP = CLI = C = C++ = this
+    // record).
     assert!(
         last.picks
             .iter()

@@ -6,7 +6,8 @@
  *   ./next_pick config/default.toml failed     # it failed: the next one
  *   ./next_pick config/default.toml picked     # it worked: a newer frame's best
  *
- * Prints the pick in the robot base frame (TCP and flange) and the pipeline's health. */
+ * Prints the pick in the robot base frame (TCP and flange), whether it is a fallback pick and its
+ * pad fill, and the pipeline's health. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -50,6 +51,11 @@ int main(int argc, char **argv) {
         print_pose("pregrasp_tcp", &pick.pregrasp_tcp);
         print_pose("flange", &pick.flange);
         print_pose("workspace_tcp", &pick.workspace_tcp);
+        psgrasp_pick_details details;
+        if (psgrasp_last_pick_details(client, &details) == PSGRASP_OK) {
+            printf("details fallback %u pad_fill_measured %u pad_fill %.9g\n", details.fallback,
+                   details.pad_fill_measured, details.pad_fill);
+        }
     } else {
         printf("no pick: result %d (%s)\n", (int)r, psgrasp_last_error());
         rc = 3;

@@ -41,6 +41,13 @@ class Client {
                       pick);
     }
 
+    /// Whether the last pick is a fallback pick, and its pad fill.
+    psgrasp_pick_details details() {
+        psgrasp_pick_details d{};
+        if (psgrasp_last_pick_details(client_, &d) != PSGRASP_OK) throw std::runtime_error(psgrasp_last_error());
+        return d;
+    }
+
     psgrasp_status status() {
         psgrasp_status s{};
         if (psgrasp_get_status(client_, &s) != PSGRASP_OK) throw std::runtime_error(psgrasp_last_error());
@@ -94,6 +101,9 @@ int main(int argc, char **argv) {
             print_pose("pregrasp_tcp", pick->pregrasp_tcp);
             print_pose("flange", pick->flange);
             print_pose("workspace_tcp", pick->workspace_tcp);
+            const psgrasp_pick_details d = client.details();
+            std::printf("details fallback %u pad_fill_measured %u pad_fill %.9g\n", d.fallback,
+                        d.pad_fill_measured, d.pad_fill);
         } else {
             std::printf("no pick: result %d (%s)\n", static_cast<int>(client.result()), psgrasp_last_error());
             rc = 3;

@@ -85,6 +85,26 @@ typedef struct psgrasp_pick {
   struct psgrasp_pose workspace_pregrasp_tcp;
 } psgrasp_pick;
 
+// What selection says about a pick beyond its poses ([`psgrasp_last_pick_details`]): a struct
+// of its own, so that `psgrasp_pick` keeps its layout for clients compiled against it.
+typedef struct psgrasp_pick_details {
+  // The frame of the pick these details belong to.
+  uint64_t frame_id;
+  // Its rank in the frame's pick order.
+  uint32_t rank;
+  // 1 if the pick comes from selection's fallback tier (`[selection] fallback`: nothing on the
+  // frame passed the primary score thresholds; a controller may approach more slowly or ask
+  // for a new view first).
+  uint32_t fallback;
+  // 1 if `pad_fill` was measured (the surface check's height map came with the frame).
+  uint32_t pad_fill_measured;
+  // Always 0 (keeps `pad_fill` 8-byte aligned on every compiler).
+  uint32_t reserved;
+  // Share of the region the pads close on that lies under the frame's measured surface, 0..1
+  // (near 1: the pads meet the object over their length); 0 when not measured.
+  double pad_fill;
+} psgrasp_pick_details;
+
 // The pipeline as the client sees it.
 typedef struct psgrasp_status {
   // 1 if every stage has a worker whose statistics are recent.
@@ -154,6 +174,16 @@ enum psgrasp_result psgrasp_report_pick(struct psgrasp_client *client,
                                         int32_t result,
                                         uint32_t timeout_ms,
                                         struct psgrasp_pick *next);
+
+// The details of the pick the last successful `psgrasp_next_pick` or `psgrasp_report_pick` of
+// this client wrote (whether it is a fallback pick, its pad fill), written to `*details`;
+// `PSGRASP_ERROR` before any pick was written.
+//
+// # Safety
+// `client` is a live client; `details` points to writable memory for one
+// `psgrasp_pick_details`.
+enum psgrasp_result psgrasp_last_pick_details(struct psgrasp_client *client,
+                                              struct psgrasp_pick_details *details);
 
 // The pipeline's health and latest outcome as this client has seen them.
 //

@@ -96,6 +96,28 @@ pub struct psgrasp_pick {
     pub workspace_pregrasp_tcp: psgrasp_pose,
 }
 
+/// What selection says about a pick beyond its poses ([`psgrasp_last_pick_details`]): a struct
+/// of its own, so that `psgrasp_pick` keeps its layout for clients compiled against it.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct psgrasp_pick_details {
+    /// The frame of the pick these details belong to.
+    pub frame_id: u64,
+    /// Its rank in the frame's pick order.
+    pub rank: u32,
+    /// 1 if the pick comes from selection's fallback tier (`[selection] fallback`: nothing on the
+    /// frame passed the primary score thresholds; a controller may approach more slowly or ask
+    /// for a new view first).
+    pub fallback: u32,
+    /// 1 if `pad_fill` was measured (the surface check's height map came with the frame).
+    pub pad_fill_measured: u32,
+    /// Always 0 (keeps `pad_fill` 8-byte aligned on every compiler).
+    pub reserved: u32,
+    /// Share of the region the pads close on that lies under the frame's measured surface, 0..1
+    /// (near 1: the pads meet the object over their length); 0 when not measured.
+    pub pad_fill: f64,
+}
+
 /// The pipeline as the client sees it.
 #[repr(C)]
 #[derive(Debug, Clone, Copy)]
@@ -127,6 +149,8 @@ pub struct psgrasp_status {
 pub struct psgrasp_client {
     client: CellClient,
     thread: ThreadId,
+    /// The pick the last `psgrasp_next_pick` / `psgrasp_report_pick` wrote, with its frame.
+    last_pick: Option<(u64, PickRecord)>,
 }
 
 thread_local! {
@@ -173,6 +197,7 @@ fn connected(client: anyhow::Result<CellClient>) -> *mut psgrasp_client {
         Ok(client) => Box::into_raw(Box::new(psgrasp_client {
             client,
             thread: std::thread::current().id(),
+            last_pick: None,
         })),
         Err(e) => {
             set_error(format!("{e:#}"));
@@ -241,7 +266,7 @@ pub unsafe extern "C" fn psgrasp_disconnect(client: *mut psgrasp_client) {
 /// `client` is NULL or a live client.
 unsafe fn client_mut<'a>(
     client: *mut psgrasp_client,
-) -> Result<&'a mut CellClient, psgrasp_result> {
+) -> Result<&'a mut psgrasp_client, psgrasp_result> {
     // SAFETY: the caller passes NULL or a live client.
     let Some(c) = (unsafe { client.as_mut() }) else {
         set_error("client is NULL");
@@ -251,7 +276,7 @@ unsafe fn client_mut<'a>(
         set_error("a psgrasp client is used only from the thread that connected it");
         return Err(psgrasp_result::PSGRASP_WRONG_THREAD);
     }
-    Ok(&mut c.client)
+    Ok(c)
 }
 
 fn pose(position: [f32; 3], xyzw: [f32; 4]) -> psgrasp_pose {
@@ -283,11 +308,28 @@ pub fn c_pick(frame_id: u64, p: &PickRecord) -> psgrasp_pick {
     }
 }
 
-fn answer(a: anyhow::Result<PickAnswer>, out: &mut psgrasp_pick) -> psgrasp_result {
+/// The C view of the details of pick `p` of frame `frame_id`.
+pub fn c_pick_details(frame_id: u64, p: &PickRecord) -> psgrasp_pick_details {
+    psgrasp_pick_details {
+        frame_id,
+        rank: p.rank,
+        fallback: p.fallback,
+        pad_fill_measured: p.pad_fill().is_some().into(),
+        reserved: 0,
+        pad_fill: p.pad_fill().map_or(0.0, f64::from),
+    }
+}
+
+fn answer(
+    a: anyhow::Result<PickAnswer>,
+    out: &mut psgrasp_pick,
+    last_pick: &mut Option<(u64, PickRecord)>,
+) -> psgrasp_result {
     use psgrasp_result::*;
     match a {
         Ok(PickAnswer::Pick { frame_id, pick }) => {
             *out = c_pick(frame_id, &pick);
+            *last_pick = Some((frame_id, pick));
             PSGRASP_OK
         }
         Ok(PickAnswer::NoPick(why)) => match why {
@@ -333,7 +375,8 @@ pub unsafe extern "C" fn psgrasp_next_pick(
             return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
         };
         let wait = Duration::from_millis(timeout_ms.into());
-        answer(client.next_pick(NextPickMode::Current, wait), out)
+        let a = client.client.next_pick(NextPickMode::Current, wait);
+        answer(a, out, &mut client.last_pick)
     })
 }
 
@@ -372,7 +415,44 @@ pub unsafe extern "C" fn psgrasp_report_pick(
             }
         };
         let wait = Duration::from_millis(timeout_ms.into());
-        answer(client.report(result, wait), out)
+        let a = client.client.report(result, wait);
+        answer(a, out, &mut client.last_pick)
+    })
+}
+
+/// The details of the pick the last successful `psgrasp_next_pick` or `psgrasp_report_pick` of
+/// this client wrote (whether it is a fallback pick, its pad fill), written to `*details`;
+/// `PSGRASP_ERROR` before any pick was written.
+///
+/// # Safety
+/// `client` is a live client; `details` points to writable memory for one
+/// `psgrasp_pick_details`.
+#[no_mangle]
+pub unsafe extern "C" fn psgrasp_last_pick_details(
+    client: *mut psgrasp_client,
+    details: *mut psgrasp_pick_details,
+) -> psgrasp_result {
+    guarded(psgrasp_result::PSGRASP_ERROR, || {
+        // SAFETY: forwarded from the caller.
+        let client = match unsafe { client_mut(client) } {
+            Ok(c) => c,
+            Err(r) => return r,
+        };
+        // SAFETY: the caller passes NULL or writable memory for one details struct.
+        let Some(out) = (unsafe { details.as_mut() }) else {
+            set_error("details is NULL");
+            return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
+        };
+        match &client.last_pick {
+            Some((frame_id, pick)) => {
+                *out = c_pick_details(*frame_id, pick);
+                psgrasp_result::PSGRASP_OK
+            }
+            None => {
+                set_error("no pick was written to this client yet");
+                psgrasp_result::PSGRASP_ERROR
+            }
+        }
     })
 }
 
@@ -396,7 +476,7 @@ pub unsafe extern "C" fn psgrasp_get_status(
             set_error("status is NULL");
             return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
         };
-        let s = match client.status() {
+        let s = match client.client.status() {
             Ok(s) => s,
             Err(e) => {
                 set_error(format!("{e:#}"));
@@ -507,6 +587,38 @@ mod tests {
         assert_eq!((status.healthy, status.has_latest), (0, 0));
         // SAFETY: the client from psgrasp_connect.
         unsafe { psgrasp_disconnect(c) };
+    }
+
+    #[test]
+    fn pick_details_carry_the_fallback_flag_and_the_pad_fill() {
+        let name = CString::new(format!("capi-details-{}", std::process::id())).unwrap();
+        // SAFETY: a valid string.
+        let c = unsafe { psgrasp_connect(name.as_ptr()) };
+        assert!(!c.is_null());
+        let mut details = psgrasp_pick_details::default();
+        // SAFETY: a live client and writable memory; no pick was written yet.
+        let r = unsafe { psgrasp_last_pick_details(c, &mut details) };
+        assert_eq!(r, psgrasp_result::PSGRASP_ERROR);
+        // SAFETY: a live client; NULL details are refused.
+        let r = unsafe { psgrasp_last_pick_details(c, std::ptr::null_mut()) };
+        assert_eq!(r, psgrasp_result::PSGRASP_INVALID_ARGUMENT);
+        // SAFETY: the client from psgrasp_connect.
+        unsafe { psgrasp_disconnect(c) };
+
+        let plain = PickRecord {
+            rank: 3,
+            ..PickRecord::default()
+        };
+        let d = c_pick_details(9, &plain);
+        assert_eq!((d.frame_id, d.rank, d.fallback), (9, 3, 0));
+        assert_eq!((d.pad_fill_measured, d.pad_fill), (0, 0.0));
+        let weak = PickRecord {
+            fallback: 1,
+            ..plain
+        }
+        .with_pad_fill(Some(0.625));
+        let d = c_pick_details(9, &weak);
+        assert_eq!((d.fallback, d.pad_fill_measured, d.pad_fill), (1, 1, 0.625));
     }
 
     #[test]
