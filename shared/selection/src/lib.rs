@@ -110,7 +110,8 @@ pub struct SelectionConfig {
     /// ([`RejectionReason::ContactOutsideBin`]), metres; 0 (default): only
     /// `bin_contact_tolerance_m` applies (and then not written, so stored configurations keep
     /// their form). The fallback tier sets it: where the learned collision score is not trusted,
-    /// grasps on and at the walls are left out.
+    /// grasps on and at the walls are left out. A few millimetres in the primary tier refuse
+    /// grasps that close on the bin's rim (`config/default.toml`).
     #[serde(skip_serializing_if = "psgrasp_geometry::is_zero")]
     pub min_contact_wall_distance_m: f32,
     /// Check the gripper against the bin walls and floor.
