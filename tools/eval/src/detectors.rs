@@ -187,54 +187,48 @@ pub struct DetectorList {
 }
 
 impl DetectorSpec {
-    /// The analytic antipodal baseline with default settings.
-    pub fn analytic() -> Self {
+    /// A detector `name` on `backend`, with no label and the protocol's selection (no
+    /// overrides).
+    pub fn new(name: &str, backend: DetectorBackend) -> Self {
         Self {
-            name: "analytic".into(),
-            label: Some("Analytic antipodal (GPD-style)".into()),
-            backend: BackendConfig::Analytic(Default::default()).into(),
+            name: name.into(),
+            label: None,
+            backend,
             min_quality: None,
             selection_fallback: None,
             selection_surface_check: None,
             selection_pick_order: None,
             selection_min_contact_wall_distance_m: None,
+        }
+    }
+
+    /// The analytic antipodal baseline with default settings.
+    pub fn analytic() -> Self {
+        Self {
+            label: Some("Analytic antipodal (GPD-style)".into()),
+            ..Self::new(
+                "analytic",
+                BackendConfig::Analytic(Default::default()).into(),
+            )
         }
     }
 
     /// A learned detector reading the model in `model_dir`.
     pub fn learned(name: &str, model_dir: PathBuf) -> Self {
-        Self {
-            name: name.into(),
-            label: None,
-            // One runtime thread: the evaluation runs scenes in parallel (`--jobs`).
-            backend: BackendConfig::Learned(LearnedConfig {
-                model_dir,
-                threads: 1,
-                ..Default::default()
-            })
-            .into(),
-            min_quality: None,
-            selection_fallback: None,
-            selection_surface_check: None,
-            selection_pick_order: None,
-            selection_min_contact_wall_distance_m: None,
-        }
+        // One runtime thread: the evaluation runs scenes in parallel (`--jobs`).
+        let backend = BackendConfig::Learned(LearnedConfig {
+            model_dir,
+            threads: 1,
+            ..Default::default()
+        });
+        Self::new(name, backend.into())
     }
 
     /// A detector for the model directory `dir`: VGN for a VGN card, learned otherwise
     /// ([`BackendConfig::for_model_dir`]), with one runtime thread.
     pub fn for_model_dir(name: &str, dir: PathBuf) -> Self {
-        Self {
-            name: name.into(),
-            label: None,
-            // One runtime thread: the evaluation runs scenes in parallel (`--jobs`).
-            backend: BackendConfig::for_model_dir(&dir, 1).into(),
-            min_quality: None,
-            selection_fallback: None,
-            selection_surface_check: None,
-            selection_pick_order: None,
-            selection_min_contact_wall_distance_m: None,
-        }
+        // One runtime thread: the evaluation runs scenes in parallel (`--jobs`).
+        Self::new(name, BackendConfig::for_model_dir(&dir, 1).into())
     }
 
     /// The display name.

@@ -32,16 +32,7 @@ fn run(level: Difficulty, seed: u64, index: u64, proto: &ProtocolConfig) -> Scen
 }
 
 fn oracle() -> DetectorSpec {
-    DetectorSpec {
-        name: "oracle".into(),
-        label: None,
-        backend: DetectorBackend::Oracle,
-        min_quality: None,
-        selection_fallback: None,
-        selection_surface_check: None,
-        selection_pick_order: None,
-        selection_min_contact_wall_distance_m: None,
-    }
+    DetectorSpec::new("oracle", DetectorBackend::Oracle)
 }
 
 /// Everything but the wall times.
