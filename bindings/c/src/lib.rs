@@ -310,13 +310,14 @@ pub fn c_pick(frame_id: u64, p: &PickRecord) -> psgrasp_pick {
 
 /// The C view of the details of pick `p` of frame `frame_id`.
 pub fn c_pick_details(frame_id: u64, p: &PickRecord) -> psgrasp_pick_details {
+    let fill = p.pad_fill();
     psgrasp_pick_details {
         frame_id,
         rank: p.rank,
         fallback: p.fallback,
-        pad_fill_measured: p.pad_fill().is_some().into(),
+        pad_fill_measured: fill.is_some().into(),
         reserved: 0,
-        pad_fill: p.pad_fill().map_or(0.0, f64::from),
+        pad_fill: fill.map_or(0.0, f64::from),
     }
 }
 
