@@ -42,9 +42,9 @@ pub use protocol::{
     ProtocolConfig, RemainingObject, SceneEnd, SceneRun, SceneSummary, TouchRecord, TouchedThing,
 };
 pub use psgrasp_sim::execute::{
-    execute_grasp, execute_grasp_traced, hand_collides, pregrasp_pose, verify_grasp_in_isolation,
-    ApproachTouch, Execution, ExecutionConfig, ExecutionReport, GraspCommand, GraspOutcome,
-    HandPart, Phase, TraceSample,
+    execute_grasp, execute_grasp_traced, hand_collides, pregrasp_pose, settle_scene,
+    verify_grasp_in_isolation, ApproachTouch, Execution, ExecutionConfig, ExecutionReport,
+    GraspCommand, GraspOutcome, HandPart, Phase, SettledScene, TraceSample,
 };
 pub use testset::{TestSet, TestSetManifest, DEFAULT_TESTSET_DIR};
 

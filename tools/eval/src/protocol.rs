@@ -26,8 +26,8 @@ use psgrasp_inference::InferenceBackend;
 use psgrasp_perception::{CellConfig, DetectionTimings, Perception, Proposer};
 use psgrasp_selection::RejectionCounts;
 use psgrasp_sim::execute::{
-    execute_grasp, pregrasp_collides, ApproachTouch, ExecutionConfig, GraspCommand, GraspOutcome,
-    HandPart,
+    execute_grasp, pregrasp_collides, settle_scene, ApproachTouch, ExecutionConfig, GraspCommand,
+    GraspOutcome, HandPart,
 };
 use psgrasp_sim::{
     add_dex_noise, default_camera, generate_scene, MeshLibrary, ObjectLibrary, Scene, WallZone,
@@ -55,6 +55,13 @@ pub struct ProtocolConfig {
     /// a failed attempt (`pregrasp_collision`). Off by default: a perception-only pipeline cannot
     /// look into the true scene.
     pub skip_colliding_pregrasps: bool,
+    /// Let the first scene of a round rest in the execution physics before its first frame, as
+    /// the scene of every later attempt has ([`settle_scene`]): scene generation settles piles
+    /// with softer contacts, and a generated pile shifts under the first attempt's hand while the
+    /// execution world pushes its overlaps apart. The paper generates and executes in one
+    /// simulator. Objects that leave the bin while settling count as lost. Off by default
+    /// (Table I's runs before 2026-12-06 were made without it).
+    pub settle_first_scene: bool,
     /// A scene ends after this many failed attempts in a row (the paper: 3).
     pub max_consecutive_failures: u32,
     /// A scene ends after this many attempts in any case.
@@ -69,6 +76,7 @@ impl Default for ProtocolConfig {
             scenes: GenerationConfig::default(),
             execution: ExecutionConfig::default(),
             skip_colliding_pregrasps: false,
+            settle_first_scene: false,
             max_consecutive_failures: 3,
             max_attempts_per_scene: 100,
             oracle: OracleConfig::default(),
@@ -517,6 +525,15 @@ pub fn clear_scene(
     let gripper = gen.cell.gripper;
     let camera = default_camera(first.bin(), gen.intrinsics);
     let objects = first.object_count();
+    let (first, lost_settling) = if cfg.settle_first_scene {
+        // As long as scene generation may take to settle a pile.
+        let limit = cfg.execution.objects.max_time_s;
+        let settled = settle_scene(&first, meshes, &cfg.execution, limit)?;
+        let lost = settled.lost_objects.len();
+        (Scene::with_meshes(settled.scene_after, meshes)?, lost)
+    } else {
+        (first, 0)
+    };
     let start = RemainingObject::with_start_zones(&first);
     let start_wall_zones: WallZones = start.iter().map(|(_, zone)| *zone).collect();
     let mut scene = first;
@@ -527,7 +544,7 @@ pub fn clear_scene(
         Detector::Oracle => Perception::for_external_proposals(cfg.cell())?,
     };
     let mut attempts = Vec::new();
-    let (mut successes, mut lost, mut failures_in_row) = (0u32, 0usize, 0u32);
+    let (mut successes, mut lost, mut failures_in_row) = (0u32, lost_settling, 0u32);
     let (mut frames, mut detection_ms, mut configurations) = (0u32, 0.0f64, 0usize);
     let mut final_rejections = None;
     let end = loop {

@@ -1,8 +1,8 @@
 //! Grasp execution on single analytic objects with known answers.
 use nalgebra::{Point3, Vector3};
 use psgrasp_eval::{
-    execute_grasp, execute_grasp_traced, verify_grasp_in_isolation, ExecutionConfig, GraspCommand,
-    GraspOutcome, HandPart, Phase, TraceSample,
+    execute_grasp, execute_grasp_traced, settle_scene, verify_grasp_in_isolation, ExecutionConfig,
+    GraspCommand, GraspOutcome, HandPart, Phase, TraceSample,
 };
 use psgrasp_geometry::{BinModel, GripperModel};
 use psgrasp_sim::{MeshLibrary, Scene};
@@ -342,4 +342,54 @@ fn the_isolated_check_closes_without_gravity() {
         &ExecutionConfig::default(),
     )
     .is_err());
+}
+
+/// Largest displacement of any object between two descriptions of the same objects, metres.
+fn largest_shift(a: &psgrasp_sim::SceneDescription, b: &psgrasp_sim::SceneDescription) -> f32 {
+    assert_eq!(a.objects.len(), b.objects.len());
+    a.objects
+        .iter()
+        .zip(&b.objects)
+        .map(|(x, y)| {
+            (x.workspace_from_object.translation.vector
+                - y.workspace_from_object.translation.vector)
+                .norm()
+        })
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn a_generated_pile_comes_to_rest_in_the_execution_world_once_settled() {
+    let cfg = ExecutionConfig::default();
+    let meshes = MeshLibrary::default();
+    let limit = cfg.objects.max_time_s;
+    let pile = psgrasp_sim::procedural_scene(11, 20, &BinModel::default()).unwrap();
+    let once = settle_scene(&pile, &meshes, &cfg, limit).unwrap();
+    assert!(once.settled, "took {} steps", once.steps);
+    assert!(once.lost_objects.is_empty());
+    // Generation's softer contacts leave overlaps that the execution world pushes apart.
+    let first_shift = largest_shift(pile.description(), &once.scene_after);
+    let again = Scene::new(once.scene_after.clone()).unwrap();
+    let twice = settle_scene(&again, &meshes, &cfg, limit).unwrap();
+    let second_shift = largest_shift(&once.scene_after, &twice.scene_after);
+    eprintln!(
+        "first settle: {} steps, largest shift {:.2} mm; second: {} steps, {:.2} mm",
+        once.steps,
+        first_shift * 1e3,
+        twice.steps,
+        second_shift * 1e3
+    );
+    assert!(twice.settled);
+    assert!(
+        second_shift < 0.5 * first_shift,
+        "{second_shift} m after {first_shift} m"
+    );
+    assert_eq!(
+        settle_scene(&pile, &meshes, &cfg, limit)
+            .unwrap()
+            .scene_after,
+        once.scene_after,
+        "deterministic"
+    );
+    assert!(settle_scene(&pile, &meshes, &cfg, f32::NAN).is_err());
 }

@@ -43,7 +43,9 @@ mod sequence;
 mod world;
 
 pub use config::ExecutionConfig;
-pub use sequence::{execute_grasp, execute_grasp_traced, verify_grasp_in_isolation};
+pub use sequence::{
+    execute_grasp, execute_grasp_traced, settle_scene, verify_grasp_in_isolation, SettledScene,
+};
 
 use crate::SimError;
 use crate::{Scene, SceneDescription};

@@ -10,7 +10,7 @@ use super::{
 };
 use crate::convert::{pose_from_glam, vec_from_glam, vec_to_glam};
 use crate::SimError;
-use crate::{MeshLibrary, Scene};
+use crate::{MeshLibrary, Scene, SceneDescription};
 use nalgebra::{Isometry3, Translation3, Vector3};
 use psgrasp_geometry::GripperModel;
 use rapier3d::prelude::{JointAxis, MotorModel, PhysicsWorld, RigidBodyHandle};
@@ -68,6 +68,53 @@ pub fn verify_grasp_in_isolation(
         &mut |_, _, _, _, _| {},
     );
     Ok(motion.outcome)
+}
+
+/// What [`settle_scene`] left.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SettledScene {
+    /// The objects still in the bin, at their poses after settling.
+    pub scene_after: SceneDescription,
+    /// Indices (in the input scene) of the objects that ended outside the bin.
+    pub lost_objects: Vec<usize>,
+    /// Physics steps taken.
+    pub steps: usize,
+    /// True if every object came to rest within the time given.
+    pub settled: bool,
+}
+
+/// `scene` after resting in the world every attempt runs in (no hand), for at most
+/// `max_time_s` simulated seconds. Scene generation settles its piles with its own, softer
+/// contacts and a longer time step ([`crate::SettleConfig`]), so objects in a generated pile
+/// overlap by what those contacts allow and shift when an attempt's stiffer world resolves the
+/// overlaps while the hand moves in; the scene after an attempt has already rested in that world.
+/// Settling a generated scene here first gives its first attempt the same footing. Objects that
+/// end outside the bin are dropped and listed. Deterministic.
+pub fn settle_scene(
+    scene: &Scene,
+    meshes: &MeshLibrary,
+    cfg: &ExecutionConfig,
+    max_time_s: f32,
+) -> Result<SettledScene, SimError> {
+    cfg.validate()?;
+    if !(max_time_s.is_finite() && max_time_s >= 0.0) {
+        return Err(SimError::InvalidSetting {
+            field: "max_time_s",
+            reason: "must be a time >= 0 s",
+        });
+    }
+    let desc = scene.description();
+    let mut world = execution_world(cfg);
+    let objects = insert_scene(&mut world, desc, meshes, cfg)?;
+    let max_steps = (max_time_s / cfg.dt_s).ceil() as usize;
+    let (steps, settled) = settle(&mut world, &objects, None, cfg, max_steps);
+    let (scene_after, lost_objects) = collect_scene(&world, desc, &objects, None);
+    Ok(SettledScene {
+        scene_after,
+        lost_objects,
+        steps,
+        settled,
+    })
 }
 
 /// The state after a step, for a trace.
@@ -161,7 +208,7 @@ pub fn execute_grasp_traced(
     if let Some(i) = removed_object {
         world.remove_body(objects[i]);
     }
-    let (settle_steps, settled) = settle(&mut world, &objects, removed_object, cfg);
+    let (settle_steps, settled) = settle(&mut world, &objects, removed_object, cfg, 0);
     steps += settle_steps;
 
     let (scene_after, lost_objects) = collect_scene(&world, desc, &objects, removed_object);

@@ -101,13 +101,16 @@ pub(super) fn insert_lone_object(
 }
 
 /// Steps until every remaining object rests or the settling time runs out.
+/// `fresh_max_steps` > 0: the objects were just inserted at rest (zero velocity), so the rest
+/// test waits for the first 10 steps instead of passing before any, and the limit is this many
+/// steps instead of [`ExecutionConfig::settle_time_s`].
 pub(super) fn settle(
     world: &mut PhysicsWorld,
     objects: &[RigidBodyHandle],
     removed: Option<usize>,
     cfg: &ExecutionConfig,
+    fresh_max_steps: usize,
 ) -> (usize, bool) {
-    let max_steps = (cfg.settle_time_s / cfg.dt_s).ceil() as usize;
     let at_rest = |world: &PhysicsWorld| {
         objects.iter().enumerate().all(|(i, h)| {
             Some(i) == removed
@@ -117,6 +120,10 @@ pub(super) fn settle(
                     .is_none_or(|b| body_at_rest(b, &cfg.objects))
         })
     };
+    if fresh_max_steps > 0 {
+        return step_until_rest(world, fresh_max_steps, 10, false, at_rest);
+    }
+    let max_steps = (cfg.settle_time_s / cfg.dt_s).ceil() as usize;
     let initially = at_rest(world);
     step_until_rest(world, max_steps, 5, initially, at_rest)
 }
