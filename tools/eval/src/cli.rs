@@ -300,6 +300,13 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
             .iter()
             .filter_map(|d| d.selection_pick_order.map(|o| (d.name.clone(), o)))
             .collect(),
+        selection_min_contact_wall_distance_m: detectors
+            .iter()
+            .filter_map(|d| {
+                d.selection_min_contact_wall_distance_m
+                    .map(|w| (d.name.clone(), w))
+            })
+            .collect(),
     };
     let run = match RunDescription::read(&args.out)? {
         Some(mut stored) => {

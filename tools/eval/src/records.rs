@@ -104,6 +104,10 @@ pub struct RunDescription {
     /// (`DetectorSpec::selection_pick_order`), by name.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub selection_pick_order: BTreeMap<String, PickOrder>,
+    /// Detectors that ran with their own `[selection] min_contact_wall_distance_m`
+    /// (`DetectorSpec::selection_min_contact_wall_distance_m`), by name.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub selection_min_contact_wall_distance_m: BTreeMap<String, f32>,
 }
 
 impl RunDescription {
@@ -161,7 +165,9 @@ impl RunDescription {
                 && self.selection_fallback.get(name) == other.selection_fallback.get(name)
                 && self.selection_surface_check.get(name)
                     == other.selection_surface_check.get(name)
-                && self.selection_pick_order.get(name) == other.selection_pick_order.get(name);
+                && self.selection_pick_order.get(name) == other.selection_pick_order.get(name)
+                && self.selection_min_contact_wall_distance_m.get(name)
+                    == other.selection_min_contact_wall_distance_m.get(name);
             match self.detectors.get(name) {
                 Some(old) if old != cfg || !same_override => {
                     return Err(mismatch(format!("settings of detector `{name}`")))
@@ -180,6 +186,10 @@ impl RunDescription {
                     }
                     if let Some(o) = other.selection_pick_order.get(name) {
                         self.selection_pick_order.insert(name.clone(), *o);
+                    }
+                    if let Some(d) = other.selection_min_contact_wall_distance_m.get(name) {
+                        self.selection_min_contact_wall_distance_m
+                            .insert(name.clone(), *d);
                     }
                 }
             }
@@ -506,6 +516,7 @@ pub(crate) mod tests {
             selection_fallback: BTreeMap::new(),
             selection_surface_check: BTreeMap::new(),
             selection_pick_order: BTreeMap::new(),
+            selection_min_contact_wall_distance_m: BTreeMap::new(),
         };
         let mut stored = base.clone();
         let mut more = base.clone();
@@ -540,5 +551,21 @@ pub(crate) mod tests {
         stored.merge(&third, dir).unwrap();
         assert_eq!(stored.min_quality.get("third"), Some(&0.3));
         assert!(stored.merge(&third, dir).is_ok());
+        // So is another distance of the contacts from the walls.
+        let mut walls = third.clone();
+        walls
+            .selection_min_contact_wall_distance_m
+            .insert("third".into(), 0.005);
+        assert!(stored.merge(&walls, dir).is_err());
+        let mut fourth = base.clone();
+        fourth
+            .detectors
+            .insert("fourth".into(), BackendConfig::default().into());
+        fourth
+            .selection_min_contact_wall_distance_m
+            .insert("fourth".into(), 0.005);
+        stored.merge(&fourth, dir).unwrap();
+        assert!(stored.merge(&fourth, dir).is_ok());
+        assert!(stored.merge(&walls, dir).is_err());
     }
 }

@@ -317,5 +317,8 @@ fn a_round_on_a_settled_first_scene_accounts_for_every_stored_object() {
     }
     // The piles moved: the first frame's detection differs from the round without settling.
     assert_ne!(outcome_key(&a), outcome_key(&b));
-    assert_eq!(outcome_key(&b), outcome_key(&run(Difficulty::Medium, 0, 0, &settled)));
+    assert_eq!(
+        outcome_key(&b),
+        outcome_key(&run(Difficulty::Medium, 0, 0, &settled))
+    );
 }
