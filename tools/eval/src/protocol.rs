@@ -2,7 +2,8 @@
 //!
 //! The scene is the dataset's test scene for the same level, run seed and index
 //! (`psgrasp datagen --difficulty <level> --seed <S>` scene `i`): seed
-//! `derive_seed(S, i)`, test objects only, the level's object count, physics and camera. Each
+//! `derive_seed(S, i)`, test objects only, the level's object count, physics and camera. With
+//! [`ProtocolConfig::settle_first_scene`] it first rests in the execution physics. Each
 //! round:
 //!
 //! 1. render the depth image of the current scene (dex noise on `challenging`; frame 0 uses the
