@@ -392,4 +392,12 @@ fn a_generated_pile_comes_to_rest_in_the_execution_world_once_settled() {
         "deterministic"
     );
     assert!(settle_scene(&pile, &meshes, &cfg, f32::NAN).is_err());
+    // No time, no steps: the scene comes back as it was.
+    let untouched = settle_scene(&pile, &meshes, &cfg, 0.0).unwrap();
+    assert_eq!(untouched.steps, 0);
+    assert!(!untouched.settled);
+    assert_eq!(
+        largest_shift(pile.description(), &untouched.scene_after),
+        0.0
+    );
 }

@@ -107,7 +107,7 @@ pub fn settle_scene(
     let mut world = execution_world(cfg);
     let objects = insert_scene(&mut world, desc, meshes, cfg)?;
     let max_steps = (max_time_s / cfg.dt_s).ceil() as usize;
-    let (steps, settled) = settle(&mut world, &objects, None, cfg, max_steps);
+    let (steps, settled) = settle(&mut world, &objects, None, cfg, Some(max_steps));
     let (scene_after, lost_objects) = collect_scene(&world, desc, &objects, None);
     Ok(SettledScene {
         scene_after,
@@ -208,7 +208,7 @@ pub fn execute_grasp_traced(
     if let Some(i) = removed_object {
         world.remove_body(objects[i]);
     }
-    let (settle_steps, settled) = settle(&mut world, &objects, removed_object, cfg, 0);
+    let (settle_steps, settled) = settle(&mut world, &objects, removed_object, cfg, None);
     steps += settle_steps;
 
     let (scene_after, lost_objects) = collect_scene(&world, desc, &objects, removed_object);

@@ -101,15 +101,15 @@ pub(super) fn insert_lone_object(
 }
 
 /// Steps until every remaining object rests or the settling time runs out.
-/// `fresh_max_steps` > 0: the objects were just inserted at rest (zero velocity), so the rest
-/// test waits for the first 10 steps instead of passing before any, and the limit is this many
+/// `fresh_max_steps = Some(n)`: the objects were just inserted at rest (zero velocity), so the
+/// rest test waits for the first 10 steps instead of passing before any, and the limit is `n`
 /// steps instead of [`ExecutionConfig::settle_time_s`].
 pub(super) fn settle(
     world: &mut PhysicsWorld,
     objects: &[RigidBodyHandle],
     removed: Option<usize>,
     cfg: &ExecutionConfig,
-    fresh_max_steps: usize,
+    fresh_max_steps: Option<usize>,
 ) -> (usize, bool) {
     let at_rest = |world: &PhysicsWorld| {
         objects.iter().enumerate().all(|(i, h)| {
@@ -120,8 +120,8 @@ pub(super) fn settle(
                     .is_none_or(|b| body_at_rest(b, &cfg.objects))
         })
     };
-    if fresh_max_steps > 0 {
-        return step_until_rest(world, fresh_max_steps, 10, false, at_rest);
+    if let Some(max_steps) = fresh_max_steps {
+        return step_until_rest(world, max_steps, 10, false, at_rest);
     }
     let max_steps = (cfg.settle_time_s / cfg.dt_s).ceil() as usize;
     let initially = at_rest(world);
