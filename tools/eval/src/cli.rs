@@ -21,14 +21,14 @@ enum SceneSource {
     /// The fixed test set.
     Fixed(Box<TestSet>),
 }
-use crate::records::{write_atomic, RecordsFile, RunDescription, SceneKey, RECORDS_VERSION};
+use crate::records::{write_atomic, RecordsFile, RunDescription, SceneKey};
 use crate::report::summarize;
 use crate::seed_copies::{self, SeedCopyPlan};
 use crate::EvalError;
 use anyhow::Context;
 use psgrasp_datagen::cli::{build_library, default_mesh_dir};
 use psgrasp_datagen::{Difficulty, ObjectSource};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -275,39 +275,7 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     let scene_source = scene_source_name(args)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let request = RunDescription {
-        format: "psgrasp-eval".into(),
-        version: RECORDS_VERSION,
-        object_source: scene_source.clone(),
-        protocol: protocol.clone(),
-        detectors: detectors
-            .iter()
-            .map(|d| (d.name.clone(), d.effective_backend(&protocol)))
-            .collect::<BTreeMap<_, _>>(),
-        min_quality: detectors
-            .iter()
-            .filter_map(|d| d.min_quality.map(|q| (d.name.clone(), q)))
-            .collect(),
-        selection_fallback: detectors
-            .iter()
-            .filter_map(|d| d.selection_fallback.map(|f| (d.name.clone(), f)))
-            .collect(),
-        selection_surface_check: detectors
-            .iter()
-            .filter_map(|d| d.selection_surface_check.map(|c| (d.name.clone(), c)))
-            .collect(),
-        selection_pick_order: detectors
-            .iter()
-            .filter_map(|d| d.selection_pick_order.map(|o| (d.name.clone(), o)))
-            .collect(),
-        selection_min_contact_wall_distance_m: detectors
-            .iter()
-            .filter_map(|d| {
-                d.selection_min_contact_wall_distance_m
-                    .map(|w| (d.name.clone(), w))
-            })
-            .collect(),
-    };
+    let request = RunDescription::new(scene_source.clone(), &protocol, &detectors);
     let run = match RunDescription::read(&args.out)? {
         Some(mut stored) => {
             stored.merge(&request, &args.out)?;

@@ -31,10 +31,10 @@
 //! Without a file, [`default_detectors`] gives the analytic baseline plus one detector per model
 //! directory (a folder with a `card.json`) under `models/`: a VGN detector for a VGN card, a
 //! learned one otherwise.
+use crate::overrides::SelectionOverrides;
 use crate::protocol::ProtocolConfig;
 use crate::EvalError;
 use psgrasp_inference::{BackendConfig, InferenceBackend, LearnedConfig};
-use psgrasp_selection::{FallbackThresholds, PickOrder, SurfaceCheck};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::path::{Path, PathBuf};
 
@@ -149,32 +149,11 @@ pub struct DetectorSpec {
     pub label: Option<String>,
     /// The backend and its settings (or the oracle).
     pub backend: DetectorBackend,
-    /// Overrides the protocol's `[selection] min_quality` for this detector only (the paper's
-    /// protocol executes q > 0.5). For a model whose quality head is calibrated differently; a
-    /// row with it is labelled as such, and the value is chosen on generated scenes
-    /// (`--generate-scenes`, seeds never reported), never on the test set.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub min_quality: Option<f32>,
-    /// Sets the protocol's `[selection.fallback]` for this detector only: looser score
-    /// thresholds tried when nothing passes the paper's (not the paper's protocol; a row with it
-    /// is labelled as such, its thresholds chosen on generated scenes of seeds never reported).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub selection_fallback: Option<FallbackThresholds>,
-    /// Sets the protocol's `[selection.surface_check]` for this detector only (the fingers
-    /// against the depth frame's height map; not the paper's protocol, a row with it is labelled
-    /// as such).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub selection_surface_check: Option<SurfaceCheck>,
-    /// Sets the protocol's `[selection] pick_order` for this detector only (the paper visits
-    /// configurations by quality; a row with another order is labelled as such).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub selection_pick_order: Option<PickOrder>,
-    /// Sets the protocol's `[selection] min_contact_wall_distance_m` for this detector only:
-    /// contacts closer than this to a side wall's inner face (or beyond it) are refused in the
-    /// primary tier too (the paper's protocol admits contacts up to `bin_contact_tolerance_m`
-    /// beyond it; a row with it is labelled as such).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub selection_min_contact_wall_distance_m: Option<f32>,
+    /// The protocol's selection settings this detector replaces for itself only (the keys
+    /// `min_quality`, `selection_fallback`, `selection_surface_check`, `selection_pick_order`,
+    /// `selection_min_contact_wall_distance_m` in its table); a row with any is labelled as such.
+    #[serde(flatten)]
+    pub selection: SelectionOverrides,
 }
 
 /// The detector list file: `[[detector]]` tables.
@@ -194,11 +173,7 @@ impl DetectorSpec {
             name: name.into(),
             label: None,
             backend,
-            min_quality: None,
-            selection_fallback: None,
-            selection_surface_check: None,
-            selection_pick_order: None,
-            selection_min_contact_wall_distance_m: None,
+            selection: SelectionOverrides::default(),
         }
     }
 
@@ -238,7 +213,7 @@ impl DetectorSpec {
 
     /// Checks the name and the selection override.
     pub fn validate(&self) -> Result<(), EvalError> {
-        if let Some(q) = self.min_quality {
+        if let Some(q) = self.selection.min_quality {
             if !(0.0..=1.0).contains(&q) {
                 return Err(EvalError::InvalidDetector {
                     name: self.name.clone(),
@@ -246,11 +221,7 @@ impl DetectorSpec {
                 });
             }
         }
-        if self.selection_fallback.is_some()
-            || self.selection_surface_check.is_some()
-            || self.selection_pick_order.is_some()
-            || self.selection_min_contact_wall_distance_m.is_some()
-        {
+        if !self.selection.is_empty() {
             // Against the selection this detector gets under the default protocol (its own
             // `min_quality` applied); the protocol it runs under is checked again when it selects.
             self.protocol(&ProtocolConfig::default())
@@ -291,25 +262,11 @@ impl DetectorSpec {
         }
     }
 
-    /// The protocol this detector runs under: `protocol` with [`DetectorSpec::min_quality`] and
-    /// the detector's `selection_*` overrides applied to the cell's selection.
+    /// The protocol this detector runs under: `protocol` with the detector's
+    /// [`DetectorSpec::selection`] overrides applied to the cell's selection.
     pub fn protocol(&self, protocol: &ProtocolConfig) -> ProtocolConfig {
         let mut p = protocol.clone();
-        if let Some(q) = self.min_quality {
-            p.scenes.cell.selection.min_quality = q;
-        }
-        if let Some(f) = self.selection_fallback {
-            p.scenes.cell.selection.fallback = Some(f);
-        }
-        if let Some(c) = self.selection_surface_check {
-            p.scenes.cell.selection.surface_check = c;
-        }
-        if let Some(o) = self.selection_pick_order {
-            p.scenes.cell.selection.pick_order = o;
-        }
-        if let Some(d) = self.selection_min_contact_wall_distance_m {
-            p.scenes.cell.selection.min_contact_wall_distance_m = d;
-        }
+        self.selection.apply(&mut p.scenes.cell.selection);
         p
     }
 
@@ -419,6 +376,7 @@ pub fn default_detectors(models_dir: &Path) -> DetectorList {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use psgrasp_selection::PickOrder;
 
     #[test]
     fn the_shipped_detector_file_builds_each_detector_for_its_hand() {
@@ -603,6 +561,11 @@ mod tests {
         let text = "[[detector]]\nname = \"x\"\nbackend = { kind = \"analytic\" }\n\
                     selection_pick_order = \"most-confident\"\n";
         assert!(DetectorList::from_toml(text).is_err());
+        // A misspelt override key is refused, not read as the protocol's setting.
+        let text = "[[detector]]\nname = \"x\"\nbackend = { kind = \"analytic\" }\n\
+                    selection_pik_order = \"confident-first\"\n";
+        let err = DetectorList::from_toml(text).unwrap_err().to_string();
+        assert!(err.contains("selection_pik_order"), "{err}");
     }
 
     #[test]

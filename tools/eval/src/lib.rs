@@ -5,7 +5,7 @@
 //! - [`protocol`]: the paper's clearing protocol on one test scene: render → fusion → detector →
 //!   selection → execution, round after round.
 //! - [`detectors`]: detectors as data (named `BackendConfig`s or the ground-truth oracle, a TOML
-//!   list).
+//!   list), each with its own [`overrides`] of the protocol's selection.
 //! - [`records`]: the resumable run directory (`run.json`, `records.jsonl`, one JSON line per
 //!   attempt and per finished scene).
 //! - [`leftovers`]: why each object a round leaves has no grasp (its graspability on the final
@@ -24,6 +24,7 @@ pub mod detectors;
 pub mod kappa;
 pub mod leftovers;
 pub mod oracle;
+pub mod overrides;
 pub mod paired;
 pub mod plot;
 pub mod protocol;
@@ -37,6 +38,7 @@ pub use detectors::{
     default_detectors, BuiltDetector, DetectorBackend, DetectorList, DetectorSpec,
 };
 pub use oracle::OracleConfig;
+pub use overrides::SelectionOverrides;
 pub use protocol::{
     clear_scene, run_scene, run_scene_with, scene_seed, AttemptRecord, Detector, PickTarget,
     ProtocolConfig, RemainingObject, SceneEnd, SceneRun, SceneSummary, TouchRecord, TouchedThing,

@@ -12,11 +12,11 @@
 //! ([`RecordsFile::open`]) a scene counts as done when its `scene` line parses; attempt lines of
 //! unfinished scenes and a torn last line (a killed run) are dropped, and those scenes run again
 //! (deterministically, so with the same outcome).
-use crate::detectors::DetectorBackend;
+use crate::detectors::{DetectorBackend, DetectorSpec};
+use crate::overrides::{LegacyOverrideMaps, SelectionOverrides};
 use crate::protocol::{AttemptRecord, ProtocolConfig, SceneSummary};
 use crate::EvalError;
 use psgrasp_datagen::Difficulty;
-use psgrasp_selection::{FallbackThresholds, PickOrder, SurfaceCheck};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
 use std::io::Write;
@@ -77,6 +77,7 @@ impl RecordLine {
 
 /// What a run directory was made with (`run.json`); a resumed run must match it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(from = "StoredRunDescription")]
 pub struct RunDescription {
     /// Always `psgrasp-eval`.
     pub format: String,
@@ -88,29 +89,70 @@ pub struct RunDescription {
     pub protocol: ProtocolConfig,
     /// Every detector run into this directory, by name, with the backend settings it ran with.
     pub detectors: BTreeMap<String, DetectorBackend>,
-    /// Detectors that ran with their own `[selection] min_quality` (`DetectorSpec::min_quality`),
-    /// by name; absent names ran with the protocol's.
+    /// Detectors that ran with their own selection settings ([`DetectorSpec::selection`]), by
+    /// name; absent names ran with the protocol's.
+    ///
+    /// [`DetectorSpec::selection`]: crate::DetectorSpec::selection
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub min_quality: BTreeMap<String, f32>,
-    /// Detectors that ran with their own `[selection.fallback]`
-    /// (`DetectorSpec::selection_fallback`), by name.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub selection_fallback: BTreeMap<String, FallbackThresholds>,
-    /// Detectors that ran with their own `[selection.surface_check]`
-    /// (`DetectorSpec::selection_surface_check`), by name.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub selection_surface_check: BTreeMap<String, SurfaceCheck>,
-    /// Detectors that ran with their own `[selection] pick_order`
-    /// (`DetectorSpec::selection_pick_order`), by name.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub selection_pick_order: BTreeMap<String, PickOrder>,
-    /// Detectors that ran with their own `[selection] min_contact_wall_distance_m`
-    /// (`DetectorSpec::selection_min_contact_wall_distance_m`), by name.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub selection_min_contact_wall_distance_m: BTreeMap<String, f32>,
+    pub selection_overrides: BTreeMap<String, SelectionOverrides>,
+}
+
+/// `run.json` as read: today's form, or the one before overrides were one record per detector
+/// (five maps, one per setting), folded into today's.
+#[derive(Deserialize)]
+struct StoredRunDescription {
+    format: String,
+    version: u32,
+    object_source: String,
+    protocol: ProtocolConfig,
+    detectors: BTreeMap<String, DetectorBackend>,
+    #[serde(default)]
+    selection_overrides: BTreeMap<String, SelectionOverrides>,
+    #[serde(flatten)]
+    legacy: LegacyOverrideMaps,
+}
+
+impl From<StoredRunDescription> for RunDescription {
+    fn from(stored: StoredRunDescription) -> Self {
+        let mut selection_overrides = stored.selection_overrides;
+        stored.legacy.fold_into(&mut selection_overrides);
+        selection_overrides.retain(|_, o| !o.is_empty());
+        Self {
+            format: stored.format,
+            version: stored.version,
+            object_source: stored.object_source,
+            protocol: stored.protocol,
+            detectors: stored.detectors,
+            selection_overrides,
+        }
+    }
 }
 
 impl RunDescription {
+    /// The description of a run of `detectors` on `object_source` under `protocol`: each
+    /// detector's backend as the evaluation runs it, and its selection overrides.
+    pub fn new(
+        object_source: String,
+        protocol: &ProtocolConfig,
+        detectors: &[DetectorSpec],
+    ) -> Self {
+        Self {
+            format: "psgrasp-eval".into(),
+            version: RECORDS_VERSION,
+            object_source,
+            protocol: protocol.clone(),
+            detectors: detectors
+                .iter()
+                .map(|d| (d.name.clone(), d.effective_backend(protocol)))
+                .collect(),
+            selection_overrides: detectors
+                .iter()
+                .filter(|d| !d.selection.is_empty())
+                .map(|d| (d.name.clone(), d.selection))
+                .collect(),
+        }
+    }
+
     /// Reads `dir/run.json` if it exists.
     pub fn read(dir: &Path) -> Result<Option<Self>, EvalError> {
         let path = dir.join(RUN_FILE);
@@ -161,13 +203,8 @@ impl RunDescription {
             return Err(mismatch("protocol settings".into()));
         }
         for (name, cfg) in &other.detectors {
-            let same_override = self.min_quality.get(name) == other.min_quality.get(name)
-                && self.selection_fallback.get(name) == other.selection_fallback.get(name)
-                && self.selection_surface_check.get(name)
-                    == other.selection_surface_check.get(name)
-                && self.selection_pick_order.get(name) == other.selection_pick_order.get(name)
-                && self.selection_min_contact_wall_distance_m.get(name)
-                    == other.selection_min_contact_wall_distance_m.get(name);
+            let same_override =
+                self.selection_overrides.get(name) == other.selection_overrides.get(name);
             match self.detectors.get(name) {
                 Some(old) if old != cfg || !same_override => {
                     return Err(mismatch(format!("settings of detector `{name}`")))
@@ -175,21 +212,8 @@ impl RunDescription {
                 Some(_) => {}
                 None => {
                     self.detectors.insert(name.clone(), cfg.clone());
-                    if let Some(q) = other.min_quality.get(name) {
-                        self.min_quality.insert(name.clone(), *q);
-                    }
-                    if let Some(f) = other.selection_fallback.get(name) {
-                        self.selection_fallback.insert(name.clone(), *f);
-                    }
-                    if let Some(c) = other.selection_surface_check.get(name) {
-                        self.selection_surface_check.insert(name.clone(), *c);
-                    }
-                    if let Some(o) = other.selection_pick_order.get(name) {
-                        self.selection_pick_order.insert(name.clone(), *o);
-                    }
-                    if let Some(d) = other.selection_min_contact_wall_distance_m.get(name) {
-                        self.selection_min_contact_wall_distance_m
-                            .insert(name.clone(), *d);
+                    if let Some(o) = other.selection_overrides.get(name) {
+                        self.selection_overrides.insert(name.clone(), *o);
                     }
                 }
             }
@@ -375,7 +399,9 @@ fn encode(r: &RecordLine, path: &Path) -> Result<Vec<u8>, EvalError> {
 pub(crate) mod tests {
     use super::*;
     use crate::protocol::SceneEnd;
+    use crate::DetectorList;
     use psgrasp_inference::BackendConfig;
+    use psgrasp_selection::PickOrder;
     use psgrasp_sim::execute::GraspOutcome;
 
     fn key(scene: u64) -> SceneKey {
@@ -512,11 +538,7 @@ pub(crate) mod tests {
             object_source: "procedural".into(),
             protocol: ProtocolConfig::default(),
             detectors: BTreeMap::from([("analytic".to_string(), BackendConfig::default().into())]),
-            min_quality: BTreeMap::new(),
-            selection_fallback: BTreeMap::new(),
-            selection_surface_check: BTreeMap::new(),
-            selection_pick_order: BTreeMap::new(),
-            selection_min_contact_wall_distance_m: BTreeMap::new(),
+            selection_overrides: BTreeMap::new(),
         };
         let mut stored = base.clone();
         let mut more = base.clone();
@@ -541,31 +563,92 @@ pub(crate) mod tests {
         // The same backend with its own selection threshold is other settings too; a new
         // detector brings its threshold along.
         let mut thresholded = base.clone();
-        thresholded.min_quality.insert("analytic".into(), 0.3);
+        let min_quality = SelectionOverrides {
+            min_quality: Some(0.3),
+            ..Default::default()
+        };
+        thresholded
+            .selection_overrides
+            .insert("analytic".into(), min_quality);
         assert!(stored.merge(&thresholded, dir).is_err());
         let mut third = base.clone();
         third
             .detectors
             .insert("third".into(), BackendConfig::default().into());
-        third.min_quality.insert("third".into(), 0.3);
+        third
+            .selection_overrides
+            .insert("third".into(), min_quality);
         stored.merge(&third, dir).unwrap();
-        assert_eq!(stored.min_quality.get("third"), Some(&0.3));
+        assert_eq!(stored.selection_overrides.get("third"), Some(&min_quality));
         assert!(stored.merge(&third, dir).is_ok());
         // So is another distance of the contacts from the walls.
         let mut walls = third.clone();
+        let wall_distance = SelectionOverrides {
+            min_contact_wall_distance_m: Some(0.005),
+            ..Default::default()
+        };
         walls
-            .selection_min_contact_wall_distance_m
-            .insert("third".into(), 0.005);
+            .selection_overrides
+            .insert("third".into(), wall_distance);
         assert!(stored.merge(&walls, dir).is_err());
         let mut fourth = base.clone();
         fourth
             .detectors
             .insert("fourth".into(), BackendConfig::default().into());
         fourth
-            .selection_min_contact_wall_distance_m
-            .insert("fourth".into(), 0.005);
+            .selection_overrides
+            .insert("fourth".into(), wall_distance);
         stored.merge(&fourth, dir).unwrap();
         assert!(stored.merge(&fourth, dir).is_ok());
         assert!(stored.merge(&walls, dir).is_err());
+    }
+
+    /// A run directory written before overrides were one record per detector (five maps, one
+    /// per setting) still resumes: the stored session-43 `run.json` of the cell's rows reads
+    /// into one record per detector, accepts the same detectors from today's detector list,
+    /// refuses one with another setting, and is written back in today's form only.
+    #[test]
+    fn a_run_json_with_the_old_override_maps_resumes() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let old_dir = root.join("data/eval-state/table1-v1-cell");
+        let text = std::fs::read_to_string(old_dir.join(RUN_FILE)).unwrap();
+        assert!(
+            text.contains("\"selection_pick_order\""),
+            "an old-form file"
+        );
+        let mut stored = RunDescription::read(&old_dir).unwrap().unwrap();
+        let walls = stored.selection_overrides["w-kappa-8app-cell-walls-wide"];
+        assert_eq!(walls.min_contact_wall_distance_m, Some(0.005));
+        assert_eq!(walls.pick_order, Some(PickOrder::ConfidentFirst));
+        assert!(walls.surface_check.unwrap().enabled);
+        assert_eq!(
+            walls.fallback.unwrap().approaches_per_configuration,
+            Some(18)
+        );
+        assert_eq!(walls.min_quality, None);
+        assert!(!stored.selection_overrides.contains_key("oracle"));
+
+        let list = DetectorList::read(&root.join("config/eval-detectors.toml")).unwrap();
+        let names = ["w-kappa-8app-cell-walls-wide".to_string(), "oracle".into()];
+        let request = RunDescription::new(
+            stored.object_source.clone(),
+            &stored.protocol,
+            &list.pick(&names).unwrap(),
+        );
+        stored.merge(&request, &old_dir).unwrap();
+        let mut moved = list.pick(&names[..1]).unwrap();
+        moved[0].selection.min_contact_wall_distance_m = Some(0.01);
+        let other = RunDescription::new(stored.object_source.clone(), &stored.protocol, &moved);
+        assert!(stored.merge(&other, &old_dir).is_err());
+
+        let dir = tempfile::tempdir().unwrap();
+        stored.write(dir.path()).unwrap();
+        let written = std::fs::read_to_string(dir.path().join(RUN_FILE)).unwrap();
+        assert!(
+            !written.contains("\"selection_pick_order\": {"),
+            "{written}"
+        );
+        assert!(written.contains("\"selection_overrides\""));
+        assert_eq!(RunDescription::read(dir.path()).unwrap().unwrap(), stored);
     }
 }
