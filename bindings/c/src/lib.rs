@@ -279,6 +279,33 @@ unsafe fn client_mut<'a>(
     Ok(c)
 }
 
+/// Runs `call` on a live client of this thread and the caller's output struct, inside
+/// [`guarded`]: a NULL or foreign-thread client, or a NULL `out` (named `what` in the error),
+/// returns `PSGRASP_INVALID_ARGUMENT` / `PSGRASP_WRONG_THREAD` without calling it.
+///
+/// # Safety
+/// `client` is NULL or a live client; `out` is NULL or writable memory for one `T`.
+unsafe fn with_client<T>(
+    client: *mut psgrasp_client,
+    out: *mut T,
+    what: &str,
+    call: impl FnOnce(&mut psgrasp_client, &mut T) -> psgrasp_result,
+) -> psgrasp_result {
+    guarded(psgrasp_result::PSGRASP_ERROR, || {
+        // SAFETY: forwarded from the caller.
+        let client = match unsafe { client_mut(client) } {
+            Ok(c) => c,
+            Err(r) => return r,
+        };
+        // SAFETY: the caller passes NULL or writable memory for one `T`.
+        let Some(out) = (unsafe { out.as_mut() }) else {
+            set_error(format!("{what} is NULL"));
+            return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
+        };
+        call(client, out)
+    })
+}
+
 fn pose(position: [f32; 3], xyzw: [f32; 4]) -> psgrasp_pose {
     let p = psgrasp_geometry::pose_from_xyzw(position, xyzw).cast::<f64>();
     let rows = psgrasp_geometry::robot::matrix_rows(&p);
@@ -364,21 +391,14 @@ pub unsafe extern "C" fn psgrasp_next_pick(
     timeout_ms: u32,
     pick: *mut psgrasp_pick,
 ) -> psgrasp_result {
-    guarded(psgrasp_result::PSGRASP_ERROR, || {
-        // SAFETY: forwarded from the caller.
-        let client = match unsafe { client_mut(client) } {
-            Ok(c) => c,
-            Err(r) => return r,
-        };
-        // SAFETY: the caller passes NULL or writable memory for one pick.
-        let Some(out) = (unsafe { pick.as_mut() }) else {
-            set_error("pick is NULL");
-            return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
-        };
-        let wait = Duration::from_millis(timeout_ms.into());
-        let a = client.client.next_pick(NextPickMode::Current, wait);
-        answer(a, out, &mut client.last_pick)
-    })
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        with_client(client, pick, "pick", |client, out| {
+            let wait = Duration::from_millis(timeout_ms.into());
+            let a = client.client.next_pick(NextPickMode::Current, wait);
+            answer(a, out, &mut client.last_pick)
+        })
+    }
 }
 
 /// Reports how the last pick went (`PSGRASP_PICK_SUCCEEDED` or `PSGRASP_PICK_FAILED`) and
@@ -394,31 +414,24 @@ pub unsafe extern "C" fn psgrasp_report_pick(
     timeout_ms: u32,
     next: *mut psgrasp_pick,
 ) -> psgrasp_result {
-    guarded(psgrasp_result::PSGRASP_ERROR, || {
-        // SAFETY: forwarded from the caller.
-        let client = match unsafe { client_mut(client) } {
-            Ok(c) => c,
-            Err(r) => return r,
-        };
-        // SAFETY: the caller passes NULL or writable memory for one pick.
-        let Some(out) = (unsafe { next.as_mut() }) else {
-            set_error("next is NULL");
-            return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
-        };
-        let result = match result {
-            PSGRASP_PICK_SUCCEEDED => PickResult::Success,
-            PSGRASP_PICK_FAILED => PickResult::Failure,
-            other => {
-                set_error(format!(
-                    "result {other}: use PSGRASP_PICK_SUCCEEDED (1) or PSGRASP_PICK_FAILED (0)"
-                ));
-                return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
-            }
-        };
-        let wait = Duration::from_millis(timeout_ms.into());
-        let a = client.client.report(result, wait);
-        answer(a, out, &mut client.last_pick)
-    })
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        with_client(client, next, "next", |client, out| {
+            let result = match result {
+                PSGRASP_PICK_SUCCEEDED => PickResult::Success,
+                PSGRASP_PICK_FAILED => PickResult::Failure,
+                other => {
+                    set_error(format!(
+                        "result {other}: use PSGRASP_PICK_SUCCEEDED (1) or PSGRASP_PICK_FAILED (0)"
+                    ));
+                    return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
+                }
+            };
+            let wait = Duration::from_millis(timeout_ms.into());
+            let a = client.client.report(result, wait);
+            answer(a, out, &mut client.last_pick)
+        })
+    }
 }
 
 /// The details of the pick the last successful `psgrasp_next_pick` or `psgrasp_report_pick` of
@@ -433,28 +446,21 @@ pub unsafe extern "C" fn psgrasp_last_pick_details(
     client: *mut psgrasp_client,
     details: *mut psgrasp_pick_details,
 ) -> psgrasp_result {
-    guarded(psgrasp_result::PSGRASP_ERROR, || {
-        // SAFETY: forwarded from the caller.
-        let client = match unsafe { client_mut(client) } {
-            Ok(c) => c,
-            Err(r) => return r,
-        };
-        // SAFETY: the caller passes NULL or writable memory for one details struct.
-        let Some(out) = (unsafe { details.as_mut() }) else {
-            set_error("details is NULL");
-            return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
-        };
-        match &client.last_pick {
-            Some((frame_id, pick)) => {
-                *out = c_pick_details(*frame_id, pick);
-                psgrasp_result::PSGRASP_OK
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        with_client(client, details, "details", |client, out| {
+            match &client.last_pick {
+                Some((frame_id, pick)) => {
+                    *out = c_pick_details(*frame_id, pick);
+                    psgrasp_result::PSGRASP_OK
+                }
+                None => {
+                    set_error("no pick was written to this client yet");
+                    psgrasp_result::PSGRASP_ERROR
+                }
             }
-            None => {
-                set_error("no pick was written to this client yet");
-                psgrasp_result::PSGRASP_ERROR
-            }
-        }
-    })
+        })
+    }
 }
 
 /// The pipeline's health and latest outcome as this client has seen them.
@@ -466,48 +472,41 @@ pub unsafe extern "C" fn psgrasp_get_status(
     client: *mut psgrasp_client,
     status: *mut psgrasp_status,
 ) -> psgrasp_result {
-    guarded(psgrasp_result::PSGRASP_ERROR, || {
-        // SAFETY: forwarded from the caller.
-        let client = match unsafe { client_mut(client) } {
-            Ok(c) => c,
-            Err(r) => return r,
-        };
-        // SAFETY: the caller passes NULL or writable memory for one status.
-        let Some(out) = (unsafe { status.as_mut() }) else {
-            set_error("status is NULL");
-            return psgrasp_result::PSGRASP_INVALID_ARGUMENT;
-        };
-        let s = match client.client.status() {
-            Ok(s) => s,
-            Err(e) => {
-                set_error(format!("{e:#}"));
-                return psgrasp_result::PSGRASP_ERROR;
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        with_client(client, status, "status", |client, out| {
+            let s = match client.client.status() {
+                Ok(s) => s,
+                Err(e) => {
+                    set_error(format!("{e:#}"));
+                    return psgrasp_result::PSGRASP_ERROR;
+                }
+            };
+            let ok_name = psgrasp::controller::status_name(StatusCode::Ok);
+            let frames_ok = s.outcomes.get(&ok_name).copied().unwrap_or(0);
+            let mut latest_error = [0 as c_char; PSGRASP_ERROR_TEXT_LEN];
+            let error_text = s.latest_error.clone().unwrap_or_default();
+            for (d, b) in latest_error
+                .iter_mut()
+                .zip(error_text.bytes().take(PSGRASP_ERROR_TEXT_LEN - 1))
+            {
+                *d = b as c_char;
             }
-        };
-        let ok_name = psgrasp::controller::status_name(StatusCode::Ok);
-        let frames_ok = s.outcomes.get(&ok_name).copied().unwrap_or(0);
-        let mut latest_error = [0 as c_char; PSGRASP_ERROR_TEXT_LEN];
-        let error_text = s.latest_error.clone().unwrap_or_default();
-        for (d, b) in latest_error
-            .iter_mut()
-            .zip(error_text.bytes().take(PSGRASP_ERROR_TEXT_LEN - 1))
-        {
-            *d = b as c_char;
-        }
-        *out = psgrasp_status {
-            healthy: s.healthy as u32,
-            workers_up: s.workers.iter().filter(|w| w.up).count() as u32,
-            workers_seen: s.workers.len() as u32,
-            has_latest: s.latest_frame_id.is_some() as u32,
-            latest_frame_id: s.latest_frame_id.unwrap_or(0),
-            latest_status: s.latest_status_code.unwrap_or(0),
-            latest_picks: s.latest_picks as u32,
-            frames_ok,
-            frames_failed: s.outcomes.values().sum::<u64>() - frames_ok,
-            latest_error,
-        };
-        psgrasp_result::PSGRASP_OK
-    })
+            *out = psgrasp_status {
+                healthy: s.healthy as u32,
+                workers_up: s.workers.iter().filter(|w| w.up).count() as u32,
+                workers_seen: s.workers.len() as u32,
+                has_latest: s.latest_frame_id.is_some() as u32,
+                latest_frame_id: s.latest_frame_id.unwrap_or(0),
+                latest_status: s.latest_status_code.unwrap_or(0),
+                latest_picks: s.latest_picks as u32,
+                frames_ok,
+                frames_failed: s.outcomes.values().sum::<u64>() - frames_ok,
+                latest_error,
+            };
+            psgrasp_result::PSGRASP_OK
+        })
+    }
 }
 
 /// The last error of this thread's calls, NUL-terminated; valid until the thread's next call.
@@ -579,6 +578,23 @@ mod tests {
         .join()
         .unwrap();
         assert_eq!(other, psgrasp_result::PSGRASP_WRONG_THREAD);
+        // Every call that writes a struct refuses a NULL one and names it.
+        let refused = |r: psgrasp_result, what: &str| {
+            assert_eq!(r, psgrasp_result::PSGRASP_INVALID_ARGUMENT, "{what}");
+            // SAFETY: the thread's last error is a NUL-terminated string.
+            let msg = unsafe { CStr::from_ptr(psgrasp_last_error()) };
+            assert_eq!(msg.to_str().unwrap(), format!("{what} is NULL"));
+        };
+        // SAFETY: a live client; NULL outputs are refused before anything is written.
+        unsafe {
+            refused(psgrasp_next_pick(c, 0, std::ptr::null_mut()), "pick");
+            refused(psgrasp_report_pick(c, 1, 0, std::ptr::null_mut()), "next");
+            refused(psgrasp_get_status(c, std::ptr::null_mut()), "status");
+            refused(
+                psgrasp_last_pick_details(c, std::ptr::null_mut()),
+                "details",
+            );
+        }
         let mut status = std::mem::MaybeUninit::<psgrasp_status>::uninit();
         // SAFETY: a live client and writable memory.
         let r = unsafe { psgrasp_get_status(c, status.as_mut_ptr()) };
