@@ -8,12 +8,11 @@ use crate::inspect::render_inspection;
 use crate::labels::LabelConfig;
 use crate::DatagenError;
 use anyhow::Context;
+use psgrasp_progress::{BatchProgress, ProgressOutput};
 use psgrasp_sim::{MeshLibrary, ObjectLibrary, Split};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc;
-use std::time::Instant;
 
 /// Where the objects come from.
 #[derive(
@@ -180,45 +179,6 @@ fn load_config(args: &DatagenArgs) -> anyhow::Result<GenerationConfig> {
     Ok(config)
 }
 
-struct Progress {
-    total: u64,
-    done: u64,
-    start: Instant,
-    generated: u64,
-    quiet: bool,
-}
-
-impl Progress {
-    fn draw(&self) {
-        if self.quiet {
-            return;
-        }
-        let frac = if self.total == 0 {
-            1.0
-        } else {
-            self.done as f64 / self.total as f64
-        };
-        let filled = (frac * 30.0).round() as usize;
-        let elapsed = self.start.elapsed().as_secs_f64();
-        let per = if self.generated > 0 {
-            elapsed / self.generated as f64
-        } else {
-            0.0
-        };
-        let eta = per * (self.total - self.done) as f64;
-        eprint!(
-            "\r[{}{}] {}/{} scenes  {:.1} s/scene  ETA {:.0} s   ",
-            "#".repeat(filled),
-            " ".repeat(30 - filled),
-            self.done,
-            self.total,
-            per,
-            eta
-        );
-        let _ = std::io::stderr().flush();
-    }
-}
-
 fn remove_stale_temp_files(dir: &Path) {
     if let Ok(entries) = std::fs::read_dir(dir) {
         for e in entries.flatten() {
@@ -331,14 +291,13 @@ pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
     }
     manifest.write(&args.out)?;
 
-    let mut progress = Progress {
-        total: args.scenes,
-        done: args.scenes - todo.len() as u64,
-        start: Instant::now(),
-        generated: 0,
-        quiet: args.quiet,
-    };
-    progress.draw();
+    let mut done = args.scenes - todo.len() as u64;
+    let mut progress = BatchProgress::new(
+        todo.len() as u64,
+        "scene",
+        ProgressOutput::for_stderr(args.quiet),
+    );
+    progress.start(&format!("{done}/{} scenes", args.scenes));
     let next = AtomicUsize::new(0);
     let stop = AtomicBool::new(false);
     let (tx, rx) = mpsc::channel::<Result<ManifestScene, (u64, DatagenError)>>();
@@ -374,10 +333,9 @@ pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
             match msg {
                 Ok(entry) => {
                     manifest.scenes.push(entry);
-                    progress.done += 1;
-                    progress.generated += 1;
-                    progress.draw();
-                    if progress.generated.is_multiple_of(10) {
+                    done += 1;
+                    progress.advance(1, &format!("{done}/{} scenes", args.scenes));
+                    if progress.ran().is_multiple_of(10) {
                         manifest.scenes.sort_by_key(|e| e.index);
                         if let Err(e) = manifest.write(&args.out) {
                             first_error.get_or_insert(anyhow::Error::from(e));
@@ -392,9 +350,7 @@ pub fn run_datagen(args: &DatagenArgs) -> anyhow::Result<()> {
             }
         }
     });
-    if !args.quiet {
-        eprintln!();
-    }
+    progress.finish();
     manifest.scenes.sort_by_key(|e| e.index);
     manifest.write(&args.out)?;
     let mut zones = psgrasp_sim::WallZones::default();

@@ -28,8 +28,8 @@ use crate::EvalError;
 use anyhow::Context;
 use psgrasp_datagen::cli::{build_library, default_mesh_dir};
 use psgrasp_datagen::{Difficulty, ObjectSource};
+use psgrasp_progress::{BatchProgress, ProgressOutput};
 use std::collections::HashMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc;
@@ -205,37 +205,21 @@ fn dedup<T: PartialEq + Clone>(v: &[T]) -> Vec<T> {
     out
 }
 
+/// The job's state behind the progress display: every round of the request, the ones this run
+/// executes and their running rates.
 struct Progress {
+    display: BatchProgress,
     total: usize,
     done: usize,
-    /// Rounds this run executes (the rest are finished or copied).
-    to_run: usize,
     /// Rounds recorded as copies ([`crate::seed_copies`]).
     copied: usize,
-    ran: usize,
     attempts: usize,
     successes: usize,
     objects: usize,
-    start: Instant,
-    quiet: bool,
 }
 
 impl Progress {
-    fn draw(&self) {
-        if self.quiet {
-            return;
-        }
-        let frac = if self.total == 0 {
-            1.0
-        } else {
-            self.done as f64 / self.total as f64
-        };
-        let filled = (frac * 30.0).round() as usize;
-        let per = if self.ran > 0 {
-            self.start.elapsed().as_secs_f64() / self.ran as f64
-        } else {
-            0.0
-        };
+    fn status(&self) -> String {
         let rate = |a: usize, b: usize| {
             if b > 0 {
                 format!("{:.0}%", 100.0 * a as f64 / b as f64)
@@ -243,19 +227,14 @@ impl Progress {
                 "-".into()
             }
         };
-        eprint!(
-            "\r[{}{}] {}/{} scenes ({} copied)  SR {} CR {}  {:.1} s/scene  ETA {:.0} s   ",
-            "#".repeat(filled),
-            " ".repeat(30 - filled),
+        format!(
+            "{}/{} scenes ({} copied)  SR {} CR {}",
             self.done,
             self.total,
             self.copied,
             rate(self.successes, self.attempts),
             rate(self.successes, self.objects),
-            per,
-            per * self.to_run.saturating_sub(self.ran) as f64
-        );
-        let _ = std::io::stderr().flush();
+        )
     }
 }
 
@@ -433,18 +412,19 @@ fn run_jobs(
         .max(1);
 
     let mut progress = Progress {
+        display: BatchProgress::new(
+            todo.len() as u64,
+            "scene",
+            ProgressOutput::for_stderr(args.quiet),
+        ),
         total,
         done: total - left,
-        to_run: todo.len(),
         copied: copy_now.len(),
-        ran: 0,
         attempts: 0,
         successes: 0,
         objects: 0,
-        start: Instant::now(),
-        quiet: args.quiet,
     };
-    progress.draw();
+    progress.display.start(&progress.status());
     let by_name: HashMap<&str, &DetectorSpec> =
         detectors.iter().map(|d| (d.name.as_str(), d)).collect();
     let next = AtomicUsize::new(0);
@@ -534,11 +514,11 @@ fn run_jobs(
                     }
                     progress.done += 1 + copies.len();
                     progress.copied += copies.len();
-                    progress.ran += 1;
                     progress.attempts += run.summary.attempts as usize;
                     progress.successes += run.summary.successes as usize;
                     progress.objects += run.summary.objects;
-                    progress.draw();
+                    let status = progress.status();
+                    progress.display.advance(1, &status);
                 }
                 Err((key, e)) => {
                     stop.store(true, Ordering::Relaxed);
@@ -550,9 +530,7 @@ fn run_jobs(
             }
         }
     });
-    if !args.quiet {
-        eprintln!();
-    }
+    progress.display.finish();
     match first_error {
         Some(e) => Err(e),
         None => Ok(()),
