@@ -604,19 +604,25 @@ pub(crate) mod tests {
     }
 
     /// A run directory written before overrides were one record per detector (five maps, one
-    /// per setting) still resumes: the stored session-43 `run.json` of the cell's rows reads
-    /// into one record per detector, accepts the same detectors from today's detector list,
-    /// refuses one with another setting, and is written back in today's form only.
+    /// per setting) still resumes: session 43's `run.json` of the cell's rows (kept as a fixture,
+    /// `tests/fixtures/run-five-override-maps.json`) reads into one record per detector, accepts
+    /// the same detectors from today's detector list, refuses one with another setting, and is
+    /// written back in today's form only.
     #[test]
     fn a_run_json_with_the_old_override_maps_resumes() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-        let old_dir = root.join("data/eval-state/table1-v1-cell");
+        let fixture = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures/run-five-override-maps.json");
+        let old_dir = tempfile::tempdir().unwrap();
+        std::fs::copy(&fixture, old_dir.path().join(RUN_FILE)).unwrap();
+        let old_dir = old_dir.path();
         let text = std::fs::read_to_string(old_dir.join(RUN_FILE)).unwrap();
         assert!(
-            text.contains("\"selection_pick_order\""),
+            text.contains("\"selection_pick_order\": {"),
             "an old-form file"
         );
-        let mut stored = RunDescription::read(&old_dir).unwrap().unwrap();
+        assert!(!text.contains("selection_overrides"), "an old-form file");
+        let mut stored = RunDescription::read(old_dir).unwrap().unwrap();
         let walls = stored.selection_overrides["w-kappa-8app-cell-walls-wide"];
         assert_eq!(walls.min_contact_wall_distance_m, Some(0.005));
         assert_eq!(walls.pick_order, Some(PickOrder::ConfidentFirst));
@@ -635,11 +641,11 @@ pub(crate) mod tests {
             &stored.protocol,
             &list.pick(&names).unwrap(),
         );
-        stored.merge(&request, &old_dir).unwrap();
+        stored.merge(&request, old_dir).unwrap();
         let mut moved = list.pick(&names[..1]).unwrap();
         moved[0].selection.min_contact_wall_distance_m = Some(0.01);
         let other = RunDescription::new(stored.object_source.clone(), &stored.protocol, &moved);
-        assert!(stored.merge(&other, &old_dir).is_err());
+        assert!(stored.merge(&other, old_dir).is_err());
 
         let dir = tempfile::tempdir().unwrap();
         stored.write(dir.path()).unwrap();
