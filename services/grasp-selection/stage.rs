@@ -219,9 +219,10 @@ pub fn run(args: StageArgs) -> Result<()> {
         grids: BTreeMap::new(),
         ended_by_ledger: RecentIds::new(VERDICT_MEMORY),
         started_ns: ctx.started_ns,
-        server: server_ports
-            .as_ref()
-            .map(|ports| NextPickServer::new(ports, state_path(&cfg.pipeline.name))),
+        server: server_ports.as_ref().map(|ports| {
+            let state = state_path(&cfg.pipeline.name);
+            NextPickServer::new(ports, state, cfg.cell.selection.failed_pick_memory)
+        }),
     };
     tracing::info!("grasp-selection[{}] ready", ctx.worker);
     run_stage(

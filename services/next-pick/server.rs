@@ -4,10 +4,12 @@
 use anyhow::{Context, Result};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use psgrasp_ipc::{
     FrameSubscriber, NextPickMode, NextPickRequest, NextPickResponse, NextPickStatus, PickRecord,
     PipelineNode,
 };
+use psgrasp_selection::{FailedPickMemory, FailedPicks, PickSpot};
 use std::path::{Path, PathBuf};
 
 type Server =
@@ -40,14 +42,33 @@ pub struct PickCursor {
     /// then show the scene before that pick, so none of their picks is handed out.
     #[serde(default)]
     picked_at_us: Option<u64>,
+    /// Picks reported failed: a new frame's picks near one go last
+    /// (`[selection.failed_pick_memory]`).
+    #[serde(default)]
+    failed: FailedPicks,
 }
 
 impl PickCursor {
-    /// Takes in the picks of `frame_id` if it is newer than the latest; starts at its best pick.
-    /// True if it did.
+    /// An empty cursor whose picks near a failed one go last for `memory.frames` frames.
+    pub fn with_memory(memory: FailedPickMemory) -> Self {
+        Self {
+            failed: FailedPicks::new(memory),
+            ..Self::default()
+        }
+    }
+
+    /// Takes in the picks of `frame_id` if it is newer than the latest; starts at its best pick
+    /// (picks near a recently failed pick moved last, keeping their `rank`). True if it did.
     pub fn offer(&mut self, frame_id: u64, picks: &[PickRecord]) -> bool {
         if self.latest.as_ref().is_none_or(|(id, _)| frame_id > *id) {
-            self.latest = Some((frame_id, picks.to_vec()));
+            let mut picks = picks.to_vec();
+            let deferred = self.failed.order(&mut picks, pick_spot);
+            if deferred > 0 {
+                tracing::info!(
+                    "next-pick: frame {frame_id}: {deferred} pick(s) near a failed pick go last"
+                );
+            }
+            self.latest = Some((frame_id, picks));
             self.cursor = 0;
             self.handed_out = false;
             if self.picked_at_us.is_some_and(|t| frame_id > t) {
@@ -77,18 +98,34 @@ impl PickCursor {
         }
     }
 
+    /// The pick handed out last and not yet reported on.
+    fn handed_out_pick(&self) -> Option<PickRecord> {
+        let (_, picks) = self.latest.as_ref()?;
+        self.handed_out
+            .then(|| picks.get(self.cursor).copied())
+            .flatten()
+    }
+
     /// The answer to a request in `mode` (`None`: an undefined wire value) received at
     /// `now_us` (µs, the clock of frame ids).
     pub fn answer(&mut self, mode: Option<NextPickMode>, now_us: u64) -> NextPickResponse {
         if mode == Some(NextPickMode::AfterSuccess) {
             self.picked_at_us = Some(now_us);
+            if let Some(held) = self.handed_out_pick() {
+                self.failed.pick_done(pick_spot(&held), true);
+            }
         }
         let Some((frame_id, picks)) = &self.latest else {
             return NextPickResponse::without_pick(NextPickStatus::NoFrameYet, 0);
         };
         match mode {
             None => return NextPickResponse::without_pick(NextPickStatus::BadRequest, *frame_id),
-            Some(NextPickMode::AfterFailure) if self.handed_out => self.cursor += 1,
+            Some(NextPickMode::AfterFailure) if self.handed_out => {
+                if let Some(failed) = picks.get(self.cursor) {
+                    self.failed.pick_done(pick_spot(failed), false);
+                }
+                self.cursor += 1;
+            }
             Some(_) => {}
         }
         if self.picked_at_us.is_some_and(|t| *frame_id <= t) {
@@ -101,6 +138,17 @@ impl PickCursor {
             }
             None => NextPickResponse::without_pick(NextPickStatus::Exhausted, *frame_id),
         }
+    }
+}
+
+/// Where a pick record grasps (workspace frame) and from where.
+fn pick_spot(pick: &PickRecord) -> PickSpot {
+    let [x, y, z, w] = pick.orientation_xyzw;
+    let rotation = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+    let approach = rotation * Vector3::z();
+    PickSpot {
+        tcp: pick.position,
+        approach: [approach.x, approach.y, approach.z],
     }
 }
 
@@ -140,15 +188,17 @@ impl<'p> NextPickServer<'p> {
     }
 
     /// A server on `ports` that carries on from the cursor saved at `state` (a restart), or
-    /// starts empty.
-    pub fn new(ports: &'p NextPickPorts, state: PathBuf) -> Self {
+    /// starts empty; its memory of failed picks follows `memory` (a restart keeps the failures
+    /// remembered, under the settings given now).
+    pub fn new(ports: &'p NextPickPorts, state: PathBuf, memory: FailedPickMemory) -> Self {
         if let Some(dir) = state.parent() {
             let _ = std::fs::create_dir_all(dir);
         }
-        let picks = PickCursor::load(&state).unwrap_or_else(|e| {
+        let mut picks = PickCursor::load(&state).unwrap_or_else(|e| {
             tracing::warn!("{e:#}; starting without picks");
             PickCursor::default()
         });
+        picks.failed.set_memory(memory);
         if let Some((frame_id, _)) = &picks.latest {
             tracing::info!("next-pick: carrying on with the picks of frame {frame_id}");
         }
@@ -237,6 +287,45 @@ mod tests {
         assert!(!c.offer(9, &picks(1)));
         assert_eq!(c.answer(None, 0).status(), Some(NextPickStatus::BadRequest));
         assert_eq!(c.answer(None, 0).frame_id, 11);
+    }
+
+    /// Picks top-down at x = `xs` (ranks in order).
+    fn picks_at(xs: &[f32]) -> Vec<PickRecord> {
+        xs.iter()
+            .enumerate()
+            .map(|(rank, &x)| PickRecord {
+                rank: rank as u32,
+                position: [x, 0.2, 0.05],
+                orientation_xyzw: [1.0, 0.0, 0.0, 0.0], // z turned to point down
+                ..Default::default()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_failed_pick_s_spot_goes_last_in_the_next_frames_with_the_memory_on() {
+        let memory = FailedPickMemory {
+            picks: 1,
+            ..Default::default()
+        };
+        for (mut c, expected) in [
+            (PickCursor::with_memory(memory), [Some(1), Some(0)]),
+            (PickCursor::default(), [Some(0), Some(1)]),
+        ] {
+            c.offer(10, &picks_at(&[0.10, 0.30]));
+            assert_eq!(rank(c.answer(Some(NextPickMode::Current), 0)), Some(0));
+            // The pick at x = 0.10 failed; the next frame's best is 1 cm from it.
+            assert_eq!(rank(c.answer(Some(NextPickMode::AfterFailure), 0)), Some(1));
+            c.offer(11, &picks_at(&[0.11, 0.20]));
+            let first = rank(c.answer(Some(NextPickMode::Current), 0));
+            let second = rank(c.answer(Some(NextPickMode::AfterFailure), 0));
+            assert_eq!([first, second], expected);
+            // One pick later (reported held) the failure is forgotten: the best pick comes
+            // first again.
+            c.answer(Some(NextPickMode::AfterSuccess), 5);
+            c.offer(12, &picks_at(&[0.11, 0.20]));
+            assert_eq!(rank(c.answer(Some(NextPickMode::Current), 10)), Some(0));
+        }
     }
 
     #[test]

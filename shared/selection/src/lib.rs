@@ -28,6 +28,7 @@
 #![warn(missing_docs)]
 
 pub mod checker;
+pub mod failed_picks;
 pub mod fallback;
 pub mod order;
 pub mod overlap;
@@ -35,6 +36,7 @@ mod pass;
 pub mod surface;
 
 pub use checker::GraspChecker;
+pub use failed_picks::{FailedPickMemory, FailedPicks, PickSpot};
 pub use fallback::FallbackThresholds;
 pub use order::{grasp_centre, OrderSettings, PickOrder};
 pub use overlap::boxes_overlap;
@@ -155,6 +157,10 @@ pub struct SelectionConfig {
     /// then not written, so stored configurations keep their form).
     #[serde(skip_serializing_if = "surface::is_default")]
     pub surface_check: SurfaceCheck,
+    /// Picks near a pick reported failed are handed out last for a few frames (off by default,
+    /// and then not written, so stored configurations keep their form; [`failed_picks`]).
+    #[serde(skip_serializing_if = "failed_picks::is_default")]
+    pub failed_pick_memory: FailedPickMemory,
 }
 
 /// `SelectionConfig::baseline_tolerance_deg`'s default, degrees.
@@ -187,6 +193,7 @@ impl Default for SelectionConfig {
             tcp_lifts_m: Vec::new(),
             fallback: None,
             surface_check: SurfaceCheck::default(),
+            failed_pick_memory: FailedPickMemory::default(),
         }
     }
 }
@@ -260,6 +267,7 @@ impl SelectionConfig {
             f.validate(c)?;
         }
         c.surface_check.validate()?;
+        c.failed_pick_memory.validate()?;
         Ok(())
     }
 }

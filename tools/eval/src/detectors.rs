@@ -510,6 +510,39 @@ mod tests {
     }
 
     #[test]
+    fn a_detector_s_failed_pick_memory_reaches_its_protocol_only() {
+        let list = DetectorList::from_toml(
+            "[[detector]]\nname = \"plain\"\nbackend = { kind = \"analytic\" }\n\
+             [[detector]]\nname = \"memory\"\nbackend = { kind = \"analytic\" }\n\
+             selection_failed_pick_memory = { picks = 2 }\n",
+        )
+        .unwrap();
+        let protocol = ProtocolConfig::default();
+        assert_eq!(list.detectors[0].protocol(&protocol), protocol);
+        let memory = list.detectors[1]
+            .protocol(&protocol)
+            .scenes
+            .cell
+            .selection
+            .failed_pick_memory;
+        assert_eq!(
+            (memory.picks, memory.radius_m, memory.max_angle_deg),
+            (2, 0.03, 20.0)
+        );
+        for bad in [
+            "{ picks = 2, radius_m = -0.1 }",
+            "{ frame = 2 }",
+            "{ picks = 200 }",
+        ] {
+            let text = format!(
+                "[[detector]]\nname = \"x\"\nbackend = {{ kind = \"analytic\" }}\n\
+                 selection_failed_pick_memory = {bad}\n"
+            );
+            assert!(DetectorList::from_toml(&text).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
     fn a_detector_s_surface_check_reaches_its_protocol_only() {
         let list = DetectorList::from_toml(
             "[[detector]]\nname = \"plain\"\nbackend = { kind = \"analytic\" }\n\

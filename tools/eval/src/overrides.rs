@@ -4,7 +4,9 @@
 //! The same record is written in the detector list (flattened into a `[[detector]]` table) and
 //! stored once per detector in `run.json`, so a new override is added here and nowhere else: the
 //! list reads it, [`SelectionOverrides::apply`] runs it, and a resumed run compares it.
-use psgrasp_selection::{FallbackThresholds, PickOrder, SelectionConfig, SurfaceCheck};
+use psgrasp_selection::{
+    FailedPickMemory, FallbackThresholds, PickOrder, SelectionConfig, SurfaceCheck,
+};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -48,6 +50,13 @@ pub struct SelectionOverrides {
         skip_serializing_if = "Option::is_none"
     )]
     pub min_contact_wall_distance_m: Option<f32>,
+    /// `[selection.failed_pick_memory]`: picks near a failed pick go last for a few frames.
+    #[serde(
+        default,
+        rename = "selection_failed_pick_memory",
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub failed_pick_memory: Option<FailedPickMemory>,
 }
 
 impl SelectionOverrides {
@@ -72,6 +81,9 @@ impl SelectionOverrides {
         }
         if let Some(d) = self.min_contact_wall_distance_m {
             selection.min_contact_wall_distance_m = d;
+        }
+        if let Some(m) = self.failed_pick_memory {
+            selection.failed_pick_memory = m;
         }
     }
 }

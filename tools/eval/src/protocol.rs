@@ -25,7 +25,7 @@ use nalgebra::Point3;
 use psgrasp_datagen::{derive_seed, Difficulty, GenerationConfig, Graspability};
 use psgrasp_inference::InferenceBackend;
 use psgrasp_perception::{CellConfig, DetectionTimings, Perception, Proposer};
-use psgrasp_selection::RejectionCounts;
+use psgrasp_selection::{FailedPicks, PickSpot, RejectionCounts};
 use psgrasp_sim::execute::{
     execute_grasp, pregrasp_collides, settle_scene, ApproachTouch, ExecutionConfig, GraspCommand,
     GraspOutcome, HandPart,
@@ -199,6 +199,10 @@ pub struct AttemptRecord {
     /// primary score thresholds on this frame).
     #[serde(default)]
     pub fallback: bool,
+    /// Picks of the frame handed out last because they lie near a recently failed pick
+    /// (`[selection.failed_pick_memory]`; 0 without it, and then not written).
+    #[serde(default, skip_serializing_if = "is_zero_count")]
+    pub deferred_near_failure: usize,
     /// The depth scale the correction found on this frame (`None`: correction off, or nothing
     /// to go by); applied when it is off by at least `depth_scale.min_correction`.
     #[serde(default)]
@@ -545,6 +549,8 @@ pub fn clear_scene(
         Detector::Oracle => Perception::for_external_proposals(cfg.cell())?,
     };
     let mut attempts = Vec::new();
+    // The cell's memory of failed picks: the robot knows whether a pick held.
+    let mut failed_picks = FailedPicks::new(cfg.cell().selection.failed_pick_memory);
     let (mut successes, mut lost, mut failures_in_row) = (0u32, lost_settling, 0u32);
     let (mut frames, mut detection_ms, mut configurations) = (0u32, 0.0f64, 0usize);
     let mut final_rejections = None;
@@ -604,7 +610,10 @@ pub fn clear_scene(
             selection_ms,
         } = detection.timings;
         let configs = &detection.configurations;
-        let picks = &detection.selection;
+        let mut picks = detection.selection;
+        let deferred_near_failure = failed_picks.order(&mut picks.picks, |p| {
+            PickSpot::of_pose(&p.workspace_from_gripper)
+        });
         let scale = detection.depth_scale.and_then(|s| s.estimate);
         frames += 1;
         detection_ms += fusion_ms + inference_ms + selection_ms;
@@ -650,6 +659,7 @@ pub fn clear_scene(
             pregrasps_skipped: skipped_in_simulation,
             labels_failed_physics: failed_physics,
             fallback: picks.fallback,
+            deferred_near_failure,
             depth_scale: scale.map(|s| s.scale),
             render_ms,
             fusion_ms,
@@ -658,6 +668,10 @@ pub fn clear_scene(
             execution_ms,
         });
         lost += r.lost_objects.len();
+        failed_picks.pick_done(
+            PickSpot::of_pose(&pick.workspace_from_gripper),
+            r.outcome.is_success(),
+        );
         if r.outcome.is_success() {
             successes += 1;
             failures_in_row = 0;
@@ -686,6 +700,10 @@ pub fn clear_scene(
         copied_from_seed: None,
     };
     Ok(SceneRun { attempts, summary })
+}
+
+fn is_zero_count(n: &usize) -> bool {
+    *n == 0
 }
 
 /// What the simulated hand executes for a selected pick.

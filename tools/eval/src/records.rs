@@ -436,6 +436,7 @@ pub(crate) mod tests {
             pregrasps_skipped: 0,
             labels_failed_physics: 0,
             fallback: false,
+            deferred_near_failure: 0,
             depth_scale: None,
             render_ms: 1.0,
             fusion_ms: 2.0,
