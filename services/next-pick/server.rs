@@ -4,7 +4,7 @@
 use anyhow::{Context, Result};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
-use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use nalgebra::{Quaternion, UnitQuaternion};
 use psgrasp_ipc::{
     FrameSubscriber, NextPickMode, NextPickRequest, NextPickResponse, NextPickStatus, PickRecord,
     PipelineNode,
@@ -144,12 +144,10 @@ impl PickCursor {
 /// Where a pick record grasps (workspace frame) and from where.
 fn pick_spot(pick: &PickRecord) -> PickSpot {
     let [x, y, z, w] = pick.orientation_xyzw;
-    let rotation = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
-    let approach = rotation * Vector3::z();
-    PickSpot {
-        tcp: pick.position,
-        approach: [approach.x, approach.y, approach.z],
-    }
+    PickSpot::of_rotation(
+        pick.position,
+        &UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
+    )
 }
 
 /// Where the next-pick server of pipeline `pipeline` keeps its cursor (the launcher removes it

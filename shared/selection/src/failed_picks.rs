@@ -22,7 +22,8 @@ pub struct FailedPickMemory {
     pub picks: u32,
     /// A pick is near a failed one when its tool centre point lies within this distance, metres…
     pub radius_m: f32,
-    /// …and its approach direction within this angle of the failed pick's, degrees.
+    /// …and both its approach direction and its closing axis (either way round: the fingers are
+    /// alike) within this angle of the failed pick's, degrees: the same grasp, give or take.
     pub max_angle_deg: f32,
 }
 
@@ -68,31 +69,40 @@ pub(crate) fn is_default(memory: &FailedPickMemory) -> bool {
     *memory == FailedPickMemory::default()
 }
 
-/// Where a pick grasps and from where: its tool centre point and unit approach direction, in one
-/// frame (the workspace's).
+/// Where a pick grasps and how: its tool centre point, unit approach direction and unit closing
+/// axis, in one frame (the workspace's).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PickSpot {
     /// Tool centre point, metres.
     pub tcp: [f32; 3],
     /// Unit approach direction (the gripper's z axis).
     pub approach: [f32; 3],
+    /// Unit closing axis between the fingers (the gripper's x axis, the grasp's baseline).
+    pub closing: [f32; 3],
 }
 
 impl PickSpot {
     /// The spot of a gripper pose (x = baseline, z = approach, origin = TCP).
     pub fn of_pose(pose: &nalgebra::Isometry3<f32>) -> Self {
-        let tcp = pose.translation.vector;
-        let approach = pose.rotation * Vector3::z();
+        Self::of_rotation(pose.translation.vector.into(), &pose.rotation)
+    }
+
+    /// The spot of a gripper at `tcp` turned by `rotation` (x = closing axis, z = approach).
+    pub fn of_rotation(tcp: [f32; 3], rotation: &nalgebra::UnitQuaternion<f32>) -> Self {
         Self {
-            tcp: [tcp.x, tcp.y, tcp.z],
-            approach: [approach.x, approach.y, approach.z],
+            tcp,
+            approach: (rotation * Vector3::z()).into(),
+            closing: (rotation * Vector3::x()).into(),
         }
     }
 
     fn near(&self, other: &PickSpot, memory: &FailedPickMemory) -> bool {
         let distance = (Point3::from(self.tcp) - Point3::from(other.tcp)).norm();
-        let cos = Vector3::from(self.approach).dot(&Vector3::from(other.approach));
-        distance <= memory.radius_m && cos >= memory.max_angle_deg.to_radians().cos()
+        let cos_max = memory.max_angle_deg.to_radians().cos();
+        let cos = |a: [f32; 3], b: [f32; 3]| Vector3::from(a).dot(&Vector3::from(b));
+        distance <= memory.radius_m
+            && cos(self.approach, other.approach) >= cos_max
+            && cos(self.closing, other.closing).abs() >= cos_max
     }
 }
 
@@ -184,12 +194,19 @@ impl FailedPicks {
 mod tests {
     use super::*;
 
-    fn spot(x: f32, tilt_deg: f32) -> PickSpot {
-        let t = tilt_deg.to_radians();
+    /// A pick at x tilted about y by `tilt_deg`, closing along x turned about the vertical by
+    /// `turn_deg`.
+    fn turned(x: f32, tilt_deg: f32, turn_deg: f32) -> PickSpot {
+        let (t, u) = (tilt_deg.to_radians(), turn_deg.to_radians());
         PickSpot {
             tcp: [x, 0.2, 0.05],
             approach: [t.sin(), 0.0, -t.cos()],
+            closing: [u.cos() * t.cos(), u.sin(), u.cos() * t.sin()],
         }
+    }
+
+    fn spot(x: f32, tilt_deg: f32) -> PickSpot {
+        turned(x, tilt_deg, 0.0)
     }
 
     fn memory(picks: u32) -> FailedPicks {
@@ -222,6 +239,16 @@ mod tests {
         let mut picks = frame();
         assert_eq!(failed.order(&mut picks, |p| *p), 0);
         assert_eq!(picks, frame());
+    }
+
+    #[test]
+    fn the_same_spot_closing_another_way_is_another_grasp() {
+        let mut failed = memory(1);
+        failed.pick_done(turned(0.10, 0.0, 0.0), false);
+        // The fingers swapped (180°) are the same grasp; turned 45° about the vertical, not.
+        assert!(failed.is_near_failure(&turned(0.10, 0.0, 180.0)));
+        assert!(failed.is_near_failure(&turned(0.11, 0.0, 15.0)));
+        assert!(!failed.is_near_failure(&turned(0.10, 0.0, 45.0)));
     }
 
     #[test]
@@ -265,6 +292,7 @@ mod tests {
         let s = PickSpot::of_pose(&pose);
         assert_eq!(s.tcp, [0.1, 0.2, 0.3]);
         assert!((s.approach[2] + 1.0).abs() < 1e-6);
+        assert!((s.closing[0] - 1.0).abs() < 1e-6);
     }
 
     #[test]
