@@ -301,7 +301,7 @@ mod tests {
     }
 
     #[test]
-    fn a_failed_pick_s_spot_goes_last_in_the_next_frames_with_the_memory_on() {
+    fn a_failed_pick_s_spot_goes_last_for_the_next_picks_with_the_memory_on() {
         let memory = FailedPickMemory {
             picks: 1,
             ..Default::default()
