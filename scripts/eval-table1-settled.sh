@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Table I under the settled protocol (docs/evaluation.md, "The first attempt of a round"): every
 # row of the test set, three seeds × 100 scenes per level, into one resumable run directory, the
-# rows that decide issue 18 first (the oracle and the shipped cell, then the ablations under the
-# cell's selection on all three seeds), then the paper's-protocol rows and the baselines.
+# rows that decide issue 18 first (the oracle and the cell, the ablations under the cell's
+# selection on seed 0, the cell with its memory of failed picks — the shipped selection since
+# session 46 —, the ablations' seeds 1 and 2), then the paper's-protocol rows and the baselines.
 #
 #   scripts/eval-table1-settled.sh [OUT]
 #
@@ -29,6 +30,8 @@ run() {
         --config config/eval-protocol-franka-fingertip-settled.toml --out "$OUT" "$@"
 }
 CELL=w-kappa-8app-cell-walls-wide
+# The cell with its memory of failed picks (config/default.toml since session 46).
+CELL_MEMORY=w-kappa-8app-cell-memory
 ABLATIONS=w-kappa-1app-cell-walls-wide,wo-kappa-1app-cell-walls-wide
 PAPER_ROWS=w-kappa-8app,w-kappa-1app,wo-kappa-1app
 BASELINES=vgn,vgn-dense
@@ -36,10 +39,13 @@ ALL=easy,medium,challenging
 run --detector "$CELL,oracle" --level challenging --seed 0,1,2
 run --detector "$CELL,oracle" --level easy,medium --seed 0,1,2
 run --detector "$ABLATIONS" --level "$ALL" --seed 0
+run --detector "$CELL_MEMORY" --level challenging --seed 0,1,2
+run --detector "$CELL_MEMORY" --level easy,medium --seed 0,1,2
 run --detector "$ABLATIONS" --level "$ALL" --seed 1,2
 run --detector "$PAPER_ROWS" --level "$ALL" --seed 0
 run --detector "$BASELINES" --level "$ALL" --seed 0
 run --detector "$PAPER_ROWS,$BASELINES" --level "$ALL" --seed 1,2
-run --detector "$CELL,oracle,$ABLATIONS,$PAPER_ROWS,$BASELINES" --level "$ALL" --seed 0,1,2 \
+run --detector "$CELL,$CELL_MEMORY,oracle,$ABLATIONS,$PAPER_ROWS,$BASELINES" --level "$ALL" \
+    --seed 0,1,2 \
     --report-only
 echo "== $(date -u +%FT%TZ) done: $OUT/summary.md"
