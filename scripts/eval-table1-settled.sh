@@ -2,8 +2,8 @@
 # Table I under the settled protocol (docs/evaluation.md, "The first attempt of a round"): every
 # row of the test set, three seeds × 100 scenes per level, into one resumable run directory, the
 # rows that decide issue 18 first (the oracle and the cell, the ablations under the cell's
-# selection on seed 0, the cell with its memory of failed picks — the shipped selection since
-# session 46 —, the ablations' seeds 1 and 2), then the paper's-protocol rows and the baselines.
+# selection on seed 0, the cell with a memory of failed picks — session 46's candidate, not
+# adopted —, the ablations' seeds 1 and 2), then the paper's-protocol rows and the baselines.
 #
 #   scripts/eval-table1-settled.sh [OUT]
 #
@@ -30,7 +30,7 @@ run() {
         --config config/eval-protocol-franka-fingertip-settled.toml --out "$OUT" "$@"
 }
 CELL=w-kappa-8app-cell-walls-wide
-# The cell with its memory of failed picks (config/default.toml since session 46).
+# The cell with a memory of failed picks (session 46; measured, not adopted).
 CELL_MEMORY=w-kappa-8app-cell-memory
 ABLATIONS=w-kappa-1app-cell-walls-wide,wo-kappa-1app-cell-walls-wide
 PAPER_ROWS=w-kappa-8app,w-kappa-1app,wo-kappa-1app
