@@ -49,7 +49,8 @@ pub struct PickCursor {
 }
 
 impl PickCursor {
-    /// An empty cursor whose picks near a failed one go last for `memory.frames` frames.
+    /// An empty cursor whose new frames' picks near a failed one go last for the next
+    /// `memory.picks` picks.
     pub fn with_memory(memory: FailedPickMemory) -> Self {
         Self {
             failed: FailedPicks::new(memory),
@@ -114,6 +115,8 @@ impl PickCursor {
             if let Some(held) = self.handed_out_pick() {
                 self.failed.pick_done(pick_spot(&held), true);
             }
+            // Reported once: a repeated success report counts no second pick.
+            self.handed_out = false;
         }
         let Some((frame_id, picks)) = &self.latest else {
             return NextPickResponse::without_pick(NextPickStatus::NoFrameYet, 0);
@@ -321,6 +324,7 @@ mod tests {
             // One pick later (reported held) the failure is forgotten: the best pick comes
             // first again.
             c.answer(Some(NextPickMode::AfterSuccess), 5);
+            c.answer(Some(NextPickMode::AfterSuccess), 6);
             c.offer(12, &picks_at(&[0.11, 0.20]));
             assert_eq!(rank(c.answer(Some(NextPickMode::Current), 10)), Some(0));
         }
