@@ -110,9 +110,10 @@ impl PickCursor {
     /// The answer to a request in `mode` (`None`: an undefined wire value) received at
     /// `now_us` (µs, the clock of frame ids).
     pub fn answer(&mut self, mode: Option<NextPickMode>, now_us: u64) -> NextPickResponse {
+        let reported = self.handed_out_pick();
         if mode == Some(NextPickMode::AfterSuccess) {
             self.picked_at_us = Some(now_us);
-            if let Some(held) = self.handed_out_pick() {
+            if let Some(held) = reported {
                 self.failed.pick_done(pick_spot(&held), true);
             }
             // Reported once: a repeated success report counts no second pick.
@@ -124,8 +125,8 @@ impl PickCursor {
         match mode {
             None => return NextPickResponse::without_pick(NextPickStatus::BadRequest, *frame_id),
             Some(NextPickMode::AfterFailure) if self.handed_out => {
-                if let Some(failed) = picks.get(self.cursor) {
-                    self.failed.pick_done(pick_spot(failed), false);
+                if let Some(failed) = reported {
+                    self.failed.pick_done(pick_spot(&failed), false);
                 }
                 self.cursor += 1;
             }

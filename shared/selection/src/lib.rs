@@ -157,7 +157,7 @@ pub struct SelectionConfig {
     /// then not written, so stored configurations keep their form).
     #[serde(skip_serializing_if = "surface::is_default")]
     pub surface_check: SurfaceCheck,
-    /// Picks near a pick reported failed are handed out last for a few frames (off by default,
+    /// Picks near a pick reported failed are handed out last for a few picks (off by default,
     /// and then not written, so stored configurations keep their form; [`failed_picks`]).
     #[serde(skip_serializing_if = "failed_picks::is_default")]
     pub failed_pick_memory: FailedPickMemory,

@@ -50,7 +50,7 @@ pub struct SelectionOverrides {
         skip_serializing_if = "Option::is_none"
     )]
     pub min_contact_wall_distance_m: Option<f32>,
-    /// `[selection.failed_pick_memory]`: picks near a failed pick go last for a few frames.
+    /// `[selection.failed_pick_memory]`: picks near a failed pick go last for a few picks.
     #[serde(
         default,
         rename = "selection_failed_pick_memory",

@@ -230,15 +230,12 @@ pub struct PickPose {
     pub approach: [f32; 3],
 }
 
-impl PickPose {
-    /// The pose of `pick`.
-    pub fn of(pick: &psgrasp_selection::SelectedGrasp) -> Self {
-        let pose = &pick.workspace_from_gripper;
-        let axis = |v: nalgebra::Vector3<f32>| (pose.rotation * v).into();
+impl From<PickSpot> for PickPose {
+    fn from(spot: PickSpot) -> Self {
         Self {
-            tcp_m: pose.translation.vector.into(),
-            baseline: axis(nalgebra::Vector3::x()),
-            approach: axis(nalgebra::Vector3::z()),
+            tcp_m: spot.tcp,
+            baseline: spot.closing,
+            approach: spot.approach,
         }
     }
 }
@@ -633,6 +630,7 @@ pub fn clear_scene(
         let execution_ms = ms(t);
         let r = &ex.report;
         let tcp = Point3::from(pick.workspace_from_gripper.translation.vector);
+        let spot = PickSpot::of_pose(&pick.workspace_from_gripper);
         let target = PickTarget::nearest(&scene, &tcp);
         attempts.push(AttemptRecord {
             attempt: k as u32,
@@ -642,7 +640,7 @@ pub fn clear_scene(
             collision_score: pick.collision_score,
             kappa: configs.get(pick.configuration_index).map(|c| c.kappa),
             approach_index: pick.approach_index,
-            pose: Some(PickPose::of(pick)),
+            pose: Some(spot.into()),
             pad_fill: pick.pad_fill,
             width_m: pick.width,
             opening_m: pick.opening_m,
@@ -668,10 +666,7 @@ pub fn clear_scene(
             execution_ms,
         });
         lost += r.lost_objects.len();
-        failed_picks.pick_done(
-            PickSpot::of_pose(&pick.workspace_from_gripper),
-            r.outcome.is_success(),
-        );
+        failed_picks.pick_done(spot, r.outcome.is_success());
         if r.outcome.is_success() {
             successes += 1;
             failures_in_row = 0;
