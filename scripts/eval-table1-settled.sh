@@ -3,7 +3,8 @@
 # row of the test set, three seeds × 100 scenes per level, into one resumable run directory, the
 # rows that decide issue 18 first (the oracle and the cell, the ablations under the cell's
 # selection on seed 0, the cell with a memory of failed picks — session 46's candidate, not
-# adopted —, the ablations' seeds 1 and 2), then the paper's-protocol rows and the baselines.
+# adopted —, the ablations' seeds 1 and 2), then the paper's-protocol rows (the paper's ablation
+# steps without the cell's selection) on all seeds, then the baselines.
 #
 #   scripts/eval-table1-settled.sh [OUT]
 #
@@ -43,8 +44,8 @@ run --detector "$CELL_MEMORY" --level challenging --seed 0,1,2
 run --detector "$CELL_MEMORY" --level easy,medium --seed 0,1,2
 run --detector "$ABLATIONS" --level "$ALL" --seed 1,2
 run --detector "$PAPER_ROWS" --level "$ALL" --seed 0
-run --detector "$BASELINES" --level "$ALL" --seed 0
-run --detector "$PAPER_ROWS,$BASELINES" --level "$ALL" --seed 1,2
+run --detector "$PAPER_ROWS" --level "$ALL" --seed 1,2
+run --detector "$BASELINES" --level "$ALL" --seed 0,1,2
 run --detector "$CELL,$CELL_MEMORY,oracle,$ABLATIONS,$PAPER_ROWS,$BASELINES" --level "$ALL" \
     --seed 0,1,2 \
     --report-only
