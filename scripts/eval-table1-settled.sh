@@ -48,6 +48,6 @@ run --detector "$PAPER_ROWS" --level "$ALL" --seed 1,2
 run --detector "$BASELINES" --level "$ALL" --seed 0,1,2
 # The report: each row paired with the one before it (the paper's κ and 8app steps, then the same
 # steps under the cell's selection, the memory against the cell, the oracle last).
-run --detector "$BASELINES,wo-kappa-1app,w-kappa-1app,w-kappa-8app,$ABLATIONS,$CELL,$CELL_MEMORY,oracle" \
+run --detector "$BASELINES,wo-kappa-1app,w-kappa-1app,w-kappa-8app,wo-kappa-1app-cell-walls-wide,w-kappa-1app-cell-walls-wide,$CELL,$CELL_MEMORY,oracle" \
     --level "$ALL" --seed 0,1,2 --report-only
 echo "== $(date -u +%FT%TZ) done: $OUT/summary.md"
