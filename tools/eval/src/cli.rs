@@ -367,7 +367,7 @@ fn run_jobs(
         uses_seed.insert(d.name.clone(), d.build(protocol)?.uses_seed());
     }
     let stored_scenes = !args.generate_scenes;
-    let plan = seed_copies::plan(todo, seeds, records, |key| {
+    let plan = seed_copies::plan(todo, records, |key| {
         !args.run_every_seed
             && seed_copies::round_is_seed_independent(
                 key.level,

@@ -308,6 +308,11 @@ impl RecordsFile {
         self.done.contains(key)
     }
 
+    /// The scenes finished before, in no particular order.
+    pub fn finished(&self) -> impl Iterator<Item = &SceneKey> {
+        self.done.iter()
+    }
+
     /// Lines dropped when opening (unfinished scenes, torn lines).
     pub fn dropped(&self) -> usize {
         self.dropped

@@ -6,8 +6,8 @@
 //! nothing ([`psgrasp_inference::InferenceBackend::uses_seed`] false: the learned and the
 //! VGN-style networks) therefore plays exactly the same round under every seed on the
 //! noise-free levels (easy, medium). Such a round runs once, for the first seed that needs it,
-//! and is recorded for the other seeds as a copy whose summary names the seed it was run under
-//! (`copied_from_seed`). `psgrasp eval --run-every-seed` runs every round instead (the test
+//! and is recorded for the other seeds, in this run or a later one into the same directory, as a
+//! copy whose summary names the seed it was run under (`copied_from_seed`). `psgrasp eval --run-every-seed` runs every round instead (the test
 //! `copied_rounds_equal_rounds_run_under_their_own_seed` compares the two).
 use crate::records::{RecordsFile, SceneKey};
 use psgrasp_datagen::Difficulty;
@@ -47,15 +47,23 @@ impl SeedCopyPlan {
 }
 
 /// Plans the unfinished rounds `todo` (in run order): a seed-independent round (`independent`)
-/// is copied from the same round under any of `seeds` that has finished, or else run for the
-/// first of its seeds in `todo` and copied for the others when that one finishes.
+/// is copied from the same round finished under the lowest seed in `records` (this run or an
+/// earlier one into the same directory, e.g. `--seed 0` first and `--seed 1,2` later), or else
+/// run for the first of its seeds in `todo` and copied for the others when that one finishes.
 pub fn plan(
     todo: Vec<SceneKey>,
-    seeds: &[u64],
     records: &RecordsFile,
     independent: impl Fn(&SceneKey) -> bool,
 ) -> SeedCopyPlan {
     let mut out = SeedCopyPlan::default();
+    // (detector, level, scene) → the lowest seed it has finished under.
+    let mut finished: HashMap<(String, Difficulty, u64), u64> = HashMap::new();
+    for key in records.finished() {
+        let seed = finished
+            .entry((key.detector.clone(), key.level, key.scene))
+            .or_insert(key.seed);
+        *seed = (*seed).min(key.seed);
+    }
     // (detector, level, scene) → the round that runs for all seeds.
     let mut runner: HashMap<(String, Difficulty, u64), SceneKey> = HashMap::new();
     for key in todo {
@@ -63,18 +71,15 @@ pub fn plan(
             out.run.push(key);
             continue;
         }
-        let finished = seeds.iter().find_map(|&seed| {
+        let group = (key.detector.clone(), key.level, key.scene);
+        if let Some(&seed) = finished.get(&group) {
             let source = SceneKey {
                 seed,
                 ..key.clone()
             };
-            records.is_done(&source).then_some(source)
-        });
-        if let Some(source) = finished {
             out.copy_now.push((source, key));
             continue;
         }
-        let group = (key.detector.clone(), key.level, key.scene);
         match runner.get(&group) {
             Some(first) => out.copy_after.entry(first.clone()).or_default().push(key),
             None => {
@@ -130,7 +135,7 @@ mod tests {
                 }
             }
         }
-        let plan = plan(todo, &[0, 1, 2], &records, |k| k.detector == "net");
+        let plan = plan(todo, &records, |k| k.detector == "net");
         let net = |seed, scene| key("net", Difficulty::Easy, seed, scene);
         let sampler = |seed, scene| key("sampler", Difficulty::Easy, seed, scene);
         assert_eq!(
@@ -152,5 +157,32 @@ mod tests {
             [(net(0, 1), net(1, 1)), (net(0, 1), net(2, 1))]
         );
         assert_eq!(plan.len(), 11);
+    }
+
+    #[test]
+    fn a_later_run_of_other_seeds_copies_the_rounds_an_earlier_run_finished() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut records = RecordsFile::open(dir.path()).unwrap();
+        let summary = crate::records::tests::summary();
+        // `--seed 0` finished scene 0 of both levels; `--seed 1,2` comes later.
+        records
+            .append_scene(&key("net", Difficulty::Easy, 0, 0), &[], &summary)
+            .unwrap();
+        records
+            .append_scene(&key("net", Difficulty::Challenging, 0, 0), &[], &summary)
+            .unwrap();
+        let todo: Vec<_> = [1, 2]
+            .into_iter()
+            .flat_map(|seed| {
+                [Difficulty::Easy, Difficulty::Challenging].map(|l| key("net", l, seed, 0))
+            })
+            .collect();
+        // The noisy level depends on the seed: it runs; the noise-free one is copied from seed 0.
+        let plan = plan(todo, &records, |k| k.level == Difficulty::Easy);
+        let easy = |seed| key("net", Difficulty::Easy, seed, 0);
+        let challenging = |seed| key("net", Difficulty::Challenging, seed, 0);
+        assert_eq!(plan.run, [challenging(1), challenging(2)]);
+        assert_eq!(plan.copy_now, [(easy(0), easy(1)), (easy(0), easy(2))]);
+        assert!(plan.copy_after.is_empty());
     }
 }
