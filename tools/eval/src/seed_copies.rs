@@ -7,7 +7,8 @@
 //! VGN-style networks) therefore plays exactly the same round under every seed on the
 //! noise-free levels (easy, medium). Such a round runs once, for the first seed that needs it,
 //! and is recorded for the other seeds, in this run or a later one into the same directory, as a
-//! copy whose summary names the seed it was run under (`copied_from_seed`). `psgrasp eval --run-every-seed` runs every round instead (the test
+//! copy whose summary names the seed it was run under (`copied_from_seed`). `psgrasp eval
+//! --run-every-seed` runs every round instead (the test
 //! `copied_rounds_equal_rounds_run_under_their_own_seed` compares the two).
 use crate::records::{RecordsFile, SceneKey};
 use psgrasp_datagen::Difficulty;
