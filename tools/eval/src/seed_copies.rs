@@ -105,6 +105,16 @@ mod tests {
         }
     }
 
+    /// The records of a run directory in which the rounds `finished` have finished.
+    fn records_with(dir: &std::path::Path, finished: &[SceneKey]) -> RecordsFile {
+        let mut records = RecordsFile::open(dir).unwrap();
+        let summary = crate::records::tests::summary();
+        for k in finished {
+            records.append_scene(k, &[], &summary).unwrap();
+        }
+        records
+    }
+
     #[test]
     fn only_sampling_free_detectors_on_stored_noise_free_scenes_are_copied() {
         use Difficulty::*;
@@ -119,12 +129,8 @@ mod tests {
     #[test]
     fn the_first_seed_runs_and_the_others_copy_it_or_a_finished_round() {
         let dir = tempfile::tempdir().unwrap();
-        let mut records = RecordsFile::open(dir.path()).unwrap();
         // Scene 1 of "net" finished under seed 0 in an earlier run.
-        let summary = crate::records::tests::summary();
-        records
-            .append_scene(&key("net", Difficulty::Easy, 0, 1), &[], &summary)
-            .unwrap();
+        let records = records_with(dir.path(), &[key("net", Difficulty::Easy, 0, 1)]);
         let mut todo = Vec::new();
         for scene in 0..2 {
             for seed in [0, 1, 2] {
@@ -163,15 +169,14 @@ mod tests {
     #[test]
     fn a_later_run_of_other_seeds_copies_the_rounds_an_earlier_run_finished() {
         let dir = tempfile::tempdir().unwrap();
-        let mut records = RecordsFile::open(dir.path()).unwrap();
-        let summary = crate::records::tests::summary();
         // `--seed 0` finished scene 0 of both levels; `--seed 1,2` comes later.
-        records
-            .append_scene(&key("net", Difficulty::Easy, 0, 0), &[], &summary)
-            .unwrap();
-        records
-            .append_scene(&key("net", Difficulty::Challenging, 0, 0), &[], &summary)
-            .unwrap();
+        let records = records_with(
+            dir.path(),
+            &[
+                key("net", Difficulty::Easy, 0, 0),
+                key("net", Difficulty::Challenging, 0, 0),
+            ],
+        );
         let todo: Vec<_> = [1, 2]
             .into_iter()
             .flat_map(|seed| {
